@@ -1,0 +1,63 @@
+"""``laser-tracker``: the offline commands (simulate, import, replay, evaluate, bench, ...).
+
+Each subcommand lives in its own module exposing ``add_arguments(parser)`` and
+``run(args) -> int``; modules are imported only when their command runs, so a command never
+pays for another's dependencies.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from laser_tracker.errors import LaserTrackerError
+
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    'simulate': ('laser_tracker.tools.simulate', 'generate a scenario recording (rosbag2)'),
+    'summarize': ('laser_tracker.tools.summarize', 'print what a recording holds'),
+    'import-carmen': ('laser_tracker.tools.import_carmen',
+                      'convert a CARMEN log to a rosbag2 recording'),
+    'import-bag': ('laser_tracker.tools.import_bag',
+                   'convert a ROS 1 bag (LaserScan, Odometry) to rosbag2'),
+    'replay': ('laser_tracker.tools.replay', 'run ego-motion, detection and tracking on a bag'),
+    'evaluate': ('laser_tracker.tools.evaluate', 'score a replay against ground truth'),
+    'demo': ('laser_tracker.tools.demo', 'replay and evaluate a bundled recording'),
+    'bench': ('laser_tracker.tools.bench', 'benchmarks that print figures'),
+    'sick-sim': ('laser_tracker.tools.sick_sim', 'a SICK LMS2xx device on a pseudo-terminal'),
+    'config': ('laser_tracker.tools.config_file', 'write or check config/laser_tracker.yaml'),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='laser-tracker', description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
+    for name, (module, help_text) in COMMANDS.items():
+        sub.add_parser(name, help=help_text, description=help_text).set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    top = build_parser()
+    # Parse only the command name first; the command's own parser is built by its module.
+    if not argv or argv[0] in ('-h', '--help') or argv[0] not in COMMANDS:
+        top.parse_args(argv)  # prints help or a clear error and exits
+    name = argv[0]
+    module_name, help_text = COMMANDS[name]
+    module = importlib.import_module(module_name)
+    parser = argparse.ArgumentParser(prog=f'laser-tracker {name}', description=help_text)
+    module.add_arguments(parser)
+    args = parser.parse_args(argv[1:])
+    try:
+        return int(module.run(args) or 0)
+    except LaserTrackerError as exc:
+        print(f'laser-tracker {name}: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'laser-tracker {name}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

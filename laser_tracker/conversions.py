@@ -1,0 +1,338 @@
+"""Message conversion in one place, for rclpy messages and rosbags messages alike.
+
+Reading works on either kind by attribute names (both follow the same .msg definitions).
+Writing goes through a :class:`MessageFactory`: :func:`ros_factory` builds rclpy messages,
+:func:`bag_factory` rosbags messages for a typestore (it fills every field a builder leaves
+out with its default, because rosbags classes have no defaults).
+
+The moving-object schema (``visualization_msgs/MarkerArray``), shared by ``/ground_truth``
+and the tracker's ``tracks`` topic, is documented in README.md ("Topics and schemas"):
+
+* the array starts with one ``DELETEALL`` marker (so a viewer drops objects that vanished);
+* then one ``ARROW`` marker per object: ``id`` = object / track id, ``ns`` = the stream
+  (``ground_truth``, ``tracks``, ...), ``header.frame_id`` = the frame of the positions;
+  ``pose.position`` = the object's centre (x, y; z = 0), ``pose.orientation`` = identity;
+  ``points = [(0, 0, 0), (vx, vy, 0)]`` relative to the pose, i.e. the velocity in m/s
+  (RViz draws an arrow covering one second of travel);
+  ``text`` = a JSON object with the extra fields (``kind`` for ground truth; ``weight``,
+  ``confirmed``, ``samples`` for tracks).
+"""
+from __future__ import annotations
+
+import array
+import importlib
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from laser_tracker.core.scan import Scan, ScanError
+
+# ----------------------------------------------------------------------------------- time
+
+
+def stamp_to_sec(stamp) -> float:
+    """builtin_interfaces/Time (or Duration) -> seconds."""
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def sec_to_sec_nanosec(t: float) -> tuple[int, int]:
+    """Seconds -> (sec, nanosec) with 0 <= nanosec < 1e9; negative times are refused."""
+    if not math.isfinite(t) or t < 0:
+        raise ValueError(f'time stamp must be finite and non-negative, got {t!r}')
+    ns = int(round(t * 1e9))
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def sec_to_ns(t: float) -> int:
+    sec, nsec = sec_to_sec_nanosec(t)
+    return sec * 1_000_000_000 + nsec
+
+
+# ----------------------------------------------------------------------------- orientation
+
+
+def yaw_from_quaternion(q) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def quaternion_from_yaw(yaw: float) -> dict[str, float]:
+    return {'x': 0.0, 'y': 0.0, 'z': math.sin(yaw / 2.0), 'w': math.cos(yaw / 2.0)}
+
+
+# -------------------------------------------------------------------------------- factory
+
+
+class MessageFactory:
+    """Builds messages of one library; ``make('pkg/msg/Type', **fields)``."""
+
+    def make(self, type_name: str, **fields):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def float32_array(self, values) -> Any:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class _RosFactory(MessageFactory):
+    def __init__(self):
+        self._classes: dict[str, type] = {}
+
+    def _cls(self, type_name: str):
+        cls = self._classes.get(type_name)
+        if cls is None:
+            pkg, _, name = type_name.split('/')
+            cls = getattr(importlib.import_module(f'{pkg}.msg'), name)
+            self._classes[type_name] = cls
+        return cls
+
+    def make(self, type_name: str, **fields):
+        return self._cls(type_name)(**fields)
+
+    def float32_array(self, values):
+        out = array.array('f')
+        out.frombytes(np.ascontiguousarray(values, dtype=np.float32).tobytes())
+        return out
+
+
+class _BagFactory(MessageFactory):
+    def __init__(self, typestore):
+        self.typestore = typestore
+
+    def _default(self, desc):
+        nodetype, detail = desc
+        kind = int(nodetype)
+        if kind == 1:  # BASE
+            base = detail[0]
+            if base == 'string':
+                return ''
+            if base == 'bool':
+                return False
+            if base.startswith('float'):
+                return 0.0
+            return 0
+        if kind == 2:  # NAME
+            return self.make(detail)
+        if kind == 3:  # fixed ARRAY
+            inner, count = detail
+            if int(inner[0]) == 1 and inner[1][0] != 'string':
+                return np.zeros(count, dtype=_numpy_dtype(inner[1][0]))
+            return [self._default(inner) for _ in range(count)]
+        # SEQUENCE
+        inner, _ = detail
+        if int(inner[0]) == 1 and inner[1][0] != 'string':
+            return np.zeros(0, dtype=_numpy_dtype(inner[1][0]))
+        return []
+
+    def make(self, type_name: str, **fields):
+        _, fielddefs = self.typestore.fielddefs[type_name]
+        for fname, desc in fielddefs:
+            if fname not in fields:
+                fields[fname] = self._default(desc)
+        return self.typestore.types[type_name](**fields)
+
+    def float32_array(self, values):
+        return np.ascontiguousarray(values, dtype=np.float32)
+
+
+def _numpy_dtype(base: str):
+    return {'bool': np.bool_, 'byte': np.uint8, 'char': np.uint8, 'octet': np.uint8}.get(
+        base, np.dtype(base) if base not in ('bool', 'byte', 'char', 'octet') else None)
+
+
+_ROS_FACTORY: _RosFactory | None = None
+
+
+def ros_factory() -> MessageFactory:
+    """rclpy message classes (imported on first use)."""
+    global _ROS_FACTORY
+    if _ROS_FACTORY is None:
+        _ROS_FACTORY = _RosFactory()
+    return _ROS_FACTORY
+
+
+def bag_factory(typestore) -> MessageFactory:
+    """rosbags message classes of ``typestore``."""
+    return _BagFactory(typestore)
+
+
+def header(factory: MessageFactory, stamp: float, frame_id: str):
+    sec, nanosec = sec_to_sec_nanosec(stamp)
+    return factory.make('std_msgs/msg/Header',
+                        stamp=factory.make('builtin_interfaces/msg/Time', sec=sec,
+                                           nanosec=nanosec),
+                        frame_id=frame_id)
+
+
+# ----------------------------------------------------------------------------- LaserScan
+
+
+def scan_from_msg(msg) -> Scan:
+    """sensor_msgs/LaserScan -> Scan. Raises ScanError for a scan that cannot be used."""
+    ranges = np.asarray(msg.ranges, dtype=np.float64)
+    inc = float(msg.angle_increment)
+    if ranges.size > 1 and np.isfinite(inc) and inc != 0.0:
+        # angle_max is redundant; a mismatch means a malformed message.
+        expected = int(round((float(msg.angle_max) - float(msg.angle_min)) / inc)) + 1
+        if abs(expected - ranges.size) > 1:
+            raise ScanError(f'{ranges.size} ranges but angle_min/angle_max/angle_increment '
+                            f'describe {expected} beams')
+    return Scan(stamp=stamp_to_sec(msg.header.stamp), ranges=ranges,
+                angle_min=float(msg.angle_min), angle_increment=inc,
+                range_min=float(msg.range_min), range_max=float(msg.range_max),
+                time_increment=float(msg.time_increment), scan_time=float(msg.scan_time),
+                frame_id=str(msg.header.frame_id))
+
+
+def scan_to_msg(factory: MessageFactory, scan: Scan, intensities=None):
+    n = scan.n_beams
+    return factory.make(
+        'sensor_msgs/msg/LaserScan',
+        header=header(factory, scan.stamp, scan.frame_id),
+        angle_min=float(scan.angle_min),
+        angle_max=float(scan.angle_min + scan.angle_increment * (n - 1)),
+        angle_increment=float(scan.angle_increment),
+        time_increment=float(scan.time_increment),
+        scan_time=float(scan.scan_time),
+        range_min=float(scan.range_min),
+        range_max=float(scan.range_max),
+        ranges=factory.float32_array(scan.ranges),
+        intensities=factory.float32_array(np.zeros(0) if intensities is None else intensities),
+    )
+
+
+# ------------------------------------------------------------------------------ Odometry
+
+
+@dataclass
+class PlanarOdometry:
+    """The planar content of a nav_msgs/Odometry message."""
+
+    stamp: float
+    x: float
+    y: float
+    theta: float
+    vx: float = 0.0
+    vy: float = 0.0
+    omega: float = 0.0
+    frame_id: str = 'odom'
+    child_frame_id: str = 'base_link'
+
+    @property
+    def pose(self) -> np.ndarray:
+        return np.array([self.x, self.y, self.theta])
+
+
+def odometry_from_msg(msg) -> PlanarOdometry:
+    p = msg.pose.pose
+    tw = msg.twist.twist
+    return PlanarOdometry(stamp=stamp_to_sec(msg.header.stamp), x=float(p.position.x),
+                          y=float(p.position.y), theta=yaw_from_quaternion(p.orientation),
+                          vx=float(tw.linear.x), vy=float(tw.linear.y),
+                          omega=float(tw.angular.z), frame_id=str(msg.header.frame_id),
+                          child_frame_id=str(msg.child_frame_id))
+
+
+def _covariance(factory: MessageFactory, diag6) -> Any:
+    cov = np.zeros(36)
+    if diag6 is not None:
+        cov[::7] = diag6
+    return cov if isinstance(factory, _BagFactory) else cov.tolist()
+
+
+def odometry_to_msg(factory: MessageFactory, odom: PlanarOdometry, pose_variance=None,
+                    twist_variance=None):
+    """PlanarOdometry -> nav_msgs/Odometry; variances are the 6 diagonal terms (or None)."""
+    f = factory
+    pose = f.make('geometry_msgs/msg/Pose',
+                  position=f.make('geometry_msgs/msg/Point', x=float(odom.x), y=float(odom.y),
+                                  z=0.0),
+                  orientation=f.make('geometry_msgs/msg/Quaternion',
+                                     **quaternion_from_yaw(float(odom.theta))))
+    twist = f.make('geometry_msgs/msg/Twist',
+                   linear=f.make('geometry_msgs/msg/Vector3', x=float(odom.vx),
+                                 y=float(odom.vy), z=0.0),
+                   angular=f.make('geometry_msgs/msg/Vector3', x=0.0, y=0.0,
+                                  z=float(odom.omega)))
+    return f.make('nav_msgs/msg/Odometry',
+                  header=header(f, odom.stamp, odom.frame_id),
+                  child_frame_id=odom.child_frame_id,
+                  pose=f.make('geometry_msgs/msg/PoseWithCovariance', pose=pose,
+                              covariance=_covariance(f, pose_variance)),
+                  twist=f.make('geometry_msgs/msg/TwistWithCovariance', twist=twist,
+                               covariance=_covariance(f, twist_variance)))
+
+
+# ------------------------------------------------------------------------ moving objects
+
+
+@dataclass
+class MovingObject:
+    """One entry of the moving-object MarkerArray schema (ground truth or a track)."""
+
+    id: int
+    x: float
+    y: float
+    vx: float = 0.0
+    vy: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+MARKER_ARROW = 0
+MARKER_ADD = 0
+MARKER_DELETEALL = 3
+
+
+def objects_to_marker_array(factory: MessageFactory, objects, stamp: float, frame_id: str,
+                            ns: str, color=(0.1, 0.6, 1.0, 0.9)):
+    f = factory
+    hdr = header(f, stamp, frame_id)
+    markers = [f.make('visualization_msgs/msg/Marker', header=hdr, ns=ns, id=0,
+                      action=MARKER_DELETEALL)]
+    for obj in objects:
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns=ns,
+            id=int(obj.id), type=MARKER_ARROW, action=MARKER_ADD,
+            pose=f.make('geometry_msgs/msg/Pose',
+                        position=f.make('geometry_msgs/msg/Point', x=float(obj.x),
+                                        y=float(obj.y), z=0.0),
+                        orientation=f.make('geometry_msgs/msg/Quaternion', x=0.0, y=0.0,
+                                           z=0.0, w=1.0)),
+            scale=f.make('geometry_msgs/msg/Vector3', x=0.05, y=0.1, z=0.1),
+            color=f.make('std_msgs/msg/ColorRGBA', r=float(color[0]), g=float(color[1]),
+                         b=float(color[2]), a=float(color[3])),
+            points=[f.make('geometry_msgs/msg/Point', x=0.0, y=0.0, z=0.0),
+                    f.make('geometry_msgs/msg/Point', x=float(obj.vx), y=float(obj.vy),
+                           z=0.0)],
+            text=json.dumps(obj.extra, separators=(',', ':')),
+        ))
+    return f.make('visualization_msgs/msg/MarkerArray', markers=markers)
+
+
+def objects_from_marker_array(msg, ns: str | None = None) -> tuple[float, str, list[MovingObject]]:
+    """MarkerArray in the moving-object schema -> (stamp, frame_id, objects).
+
+    Markers that are not ADD arrows (or not of ``ns`` when given) are ignored. The stamp and
+    frame are those of the first marker (nan and '' for an empty array).
+    """
+    stamp, frame_id, objects = math.nan, '', []
+    for marker in msg.markers:
+        if math.isnan(stamp):
+            stamp, frame_id = stamp_to_sec(marker.header.stamp), str(marker.header.frame_id)
+        if marker.action != MARKER_ADD or marker.type != MARKER_ARROW:
+            continue
+        if ns is not None and marker.ns != ns:
+            continue
+        pts = list(marker.points)
+        vx = vy = 0.0
+        if len(pts) >= 2:
+            vx, vy = pts[1].x - pts[0].x, pts[1].y - pts[0].y
+        try:
+            extra = json.loads(marker.text) if marker.text else {}
+        except json.JSONDecodeError:
+            extra = {'text': marker.text}
+        objects.append(MovingObject(id=int(marker.id), x=float(marker.pose.position.x),
+                                    y=float(marker.pose.position.y), vx=float(vx),
+                                    vy=float(vy), extra=extra))
+    return stamp, frame_id, objects

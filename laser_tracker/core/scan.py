@@ -1,0 +1,101 @@
+"""A laser scan as numpy arrays, its beam geometry, and the checks every consumer relies on.
+
+Every module of the pipeline takes a :class:`Scan`; conversion from messages happens once in
+``laser_tracker.conversions``. Invalid beams (NaN, inf, below ``range_min``, at or above
+``range_max``) are never interpreted as obstacles: :meth:`Scan.valid` says which beams hit
+something, :meth:`Scan.free_ranges` how far each beam saw free space.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+
+class ScanError(ValueError):
+    """A scan that cannot be used at all (the message says why); callers skip it."""
+
+
+@lru_cache(maxsize=16)
+def beam_table(angle_min: float, angle_increment: float, n_beams: int):
+    """Cached (angles, cos, sin) for one scan geometry (read-only arrays)."""
+    angles = angle_min + angle_increment * np.arange(n_beams)
+    table = (angles, np.cos(angles), np.sin(angles))
+    for a in table:
+        a.setflags(write=False)
+    return table
+
+
+@dataclass
+class Scan:
+    """One sweep: ``ranges[i]`` along ``angle_min + i * angle_increment`` in the laser frame.
+
+    ``stamp`` is the acquisition time of the first beam in seconds. Ranges are metres; values
+    that are not finite or lie outside ``[range_min, range_max)`` mean "no return".
+    """
+
+    stamp: float
+    ranges: np.ndarray
+    angle_min: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    time_increment: float = 0.0
+    scan_time: float = 0.0
+    frame_id: str = 'laser'
+
+    def __post_init__(self):
+        self.ranges = np.asarray(self.ranges, dtype=np.float64).ravel()
+        if self.ranges.size == 0:
+            raise ScanError('scan has no beams')
+        if not np.isfinite(self.stamp):
+            raise ScanError(f'scan stamp is not finite: {self.stamp!r}')
+        if not (np.isfinite(self.angle_increment) and self.angle_increment != 0.0):
+            raise ScanError(f'angle_increment must be finite and non-zero, '
+                            f'got {self.angle_increment!r}')
+        if not np.isfinite(self.angle_min):
+            raise ScanError(f'angle_min is not finite: {self.angle_min!r}')
+        if not (np.isfinite(self.range_max) and self.range_max > 0):
+            raise ScanError(f'range_max must be positive and finite, got {self.range_max!r}')
+        if not np.isfinite(self.range_min) or self.range_min < 0:
+            self.range_min = 0.0
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.ranges.size)
+
+    @property
+    def angles(self) -> np.ndarray:
+        return beam_table(float(self.angle_min), float(self.angle_increment), self.n_beams)[0]
+
+    def valid(self) -> np.ndarray:
+        """Beams that returned from an obstacle within the sensor's range."""
+        r = self.ranges
+        with np.errstate(invalid='ignore'):
+            return np.isfinite(r) & (r >= max(self.range_min, 1e-6)) & (r < self.range_max)
+
+    def points(self, max_range: float | None = None) -> np.ndarray:
+        """Cartesian end points (M, 2) of the valid beams, in the laser frame."""
+        mask = self.valid()
+        if max_range is not None:
+            mask &= self.ranges <= max_range
+        _, cos, sin = beam_table(float(self.angle_min), float(self.angle_increment), self.n_beams)
+        r = self.ranges[mask]
+        return np.column_stack((r * cos[mask], r * sin[mask]))
+
+    def free_ranges(self, max_free: float | None = None) -> np.ndarray:
+        """How far along each beam space was seen free (metres).
+
+        A return frees space up to the hit; a no-return reading (inf or >= range_max) frees
+        space up to ``max_free`` (default ``range_max``); NaN and negative readings free nothing.
+        """
+        limit = self.range_max if max_free is None else min(max_free, self.range_max)
+        r = self.ranges
+        out = np.zeros_like(r)
+        valid = self.valid()
+        out[valid] = np.minimum(r[valid], limit)
+        with np.errstate(invalid='ignore'):
+            no_return = np.isposinf(r) | (np.isfinite(r) & (r >= self.range_max))
+        out[no_return] = limit
+        return out
