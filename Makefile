@@ -11,7 +11,7 @@ DEMO_OUT ?= out/demo
 
 setup: $(STAMP)
 
-$(STAMP): setup.py package.xml
+$(STAMP): setup.py setup.cfg package.xml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[wheels,eval,test,bench]'

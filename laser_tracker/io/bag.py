@@ -1,0 +1,182 @@
+"""Recordings: rosbag2 (sqlite3 or mcap) written with rosbags; rosbag2 and ROS 1 bags read.
+
+Topics of a laser_tracker recording (README.md, "Topics and schemas"):
+``/scan`` sensor_msgs/LaserScan, ``/odom`` nav_msgs/Odometry, ``/ground_truth``
+visualization_msgs/MarkerArray (the moving-object schema of ``laser_tracker.conversions``),
+``/ground_truth/platform`` nav_msgs/Odometry (the platform's true pose).
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from laser_tracker.conversions import (MovingObject, bag_factory, objects_from_marker_array,
+                                       odometry_from_msg, scan_from_msg, sec_to_ns)
+from laser_tracker.core.scan import Scan, ScanError
+from laser_tracker.errors import InputFileError
+from laser_tracker.io.atomic import atomic_path
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+FACTORY = bag_factory(TYPESTORE)
+
+SCAN_TOPIC = '/scan'
+ODOM_TOPIC = '/odom'
+GROUND_TRUTH_TOPIC = '/ground_truth'
+PLATFORM_TRUTH_TOPIC = '/ground_truth/platform'
+
+
+class BagWriter:
+    """Write a rosbag2 recording that appears only when complete.
+
+    ``with BagWriter(path) as bag: bag.write('/scan', msg, stamp)``: the recording is written in
+    a temporary sibling folder and moved to ``path`` on success; after an error nothing is left.
+    """
+
+    def __init__(self, path: str | Path, storage: str = 'sqlite3', overwrite: bool = False):
+        if storage not in ('sqlite3', 'mcap'):
+            raise ValueError(f'storage must be sqlite3 or mcap, got {storage!r}')
+        self.path, self.storage, self.overwrite = Path(path), storage, overwrite
+        self._connections = {}
+        self._atomic = None
+        self._writer = None
+
+    def __enter__(self) -> BagWriter:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        self._atomic = atomic_path(self.path, overwrite=self.overwrite)
+        tmp = self._atomic.__enter__()
+        plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
+        self._writer = Writer(tmp, version=8, storage_plugin=plugin)
+        self._writer.open()
+        return self
+
+    def write(self, topic: str, msg, stamp: float) -> None:
+        """Append ``msg`` (a rosbags message) on ``topic`` with receive time ``stamp`` (s)."""
+        msgtype = msg.__msgtype__
+        conn = self._connections.get(topic)
+        if conn is None:
+            conn = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+            self._connections[topic] = conn
+        self._writer.write(conn, sec_to_ns(stamp), TYPESTORE.serialize_cdr(msg, msgtype))
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            self._writer.close()
+        finally:
+            self._atomic.__exit__(exc_type, exc, tb)
+        return False
+
+
+def _open(path: Path) -> AnyReader:
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(path, 'no such file or folder')
+    try:
+        reader = AnyReader([path], default_typestore=TYPESTORE)
+        reader.open()
+    except Exception as exc:  # rosbags raises several unrelated types for damaged files
+        raise InputFileError(path, f'not a readable bag: {exc}') from None
+    return reader
+
+
+def topics(path: str | Path) -> dict[str, tuple[str, int]]:
+    """``{topic: (msgtype, message count)}`` of a recording."""
+    reader = _open(Path(path))
+    try:
+        return {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def iter_messages(path: str | Path, topic_names: Iterable[str]) -> Iterator[tuple[str, int, object]]:
+    """Yield ``(topic, receive time ns, message)`` in time order for the given topics.
+
+    A message that cannot be deserialised raises InputFileError naming its index and time.
+    """
+    path = Path(path)
+    reader = _open(path)
+    wanted = set(topic_names)
+    try:
+        conns = [c for c in reader.connections if c.topic in wanted]
+        index = 0
+        try:
+            for conn, t_ns, raw in reader.messages(connections=conns):
+                try:
+                    msg = reader.deserialize(raw, conn.msgtype)
+                except Exception as exc:
+                    raise InputFileError(path, f'cannot decode {conn.msgtype}: {exc}',
+                                         f'message {index} on {conn.topic} at t={t_ns} ns') \
+                        from None
+                index += 1
+                yield conn.topic, t_ns, msg
+        except InputFileError:
+            raise
+        except Exception as exc:
+            raise InputFileError(path, f'damaged recording: {exc}',
+                                 f'after message {index}') from None
+    finally:
+        reader.close()
+
+
+def read_scans(path: str | Path, topic: str = SCAN_TOPIC) -> Iterator[Scan | ScanError]:
+    """Scans of ``topic``; a malformed scan is yielded as its ScanError for the caller to skip."""
+    for _, _, msg in iter_messages(path, [topic]):
+        try:
+            yield scan_from_msg(msg)
+        except ScanError as exc:
+            yield exc
+
+
+@dataclass
+class PoseTrack:
+    """Time-stamped planar poses, e.g. odometry: ``stamps`` (N,), ``poses`` (N, 3) x, y, theta."""
+
+    stamps: np.ndarray
+    poses: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.stamps.size)
+
+
+def read_odometry(path: str | Path, topic: str = ODOM_TOPIC) -> PoseTrack:
+    """Every Odometry message of ``topic`` as a PoseTrack, in the order recorded."""
+    rows = []
+    for _, _, msg in iter_messages(path, [topic]):
+        o = odometry_from_msg(msg)
+        rows.append((o.stamp, o.x, o.y, o.theta))
+    arr = np.array(rows, dtype=float).reshape(-1, 4)
+    return PoseTrack(stamps=arr[:, 0].copy(), poses=arr[:, 1:].copy())
+
+
+@dataclass
+class GroundTruthFrame:
+    """The moving objects at one instant, positions in ``frame_id`` (the world frame)."""
+
+    stamp: float
+    frame_id: str
+    objects: list[MovingObject]
+
+
+def read_ground_truth(path: str | Path, topic: str = GROUND_TRUTH_TOPIC) -> list[GroundTruthFrame]:
+    """The ground truth of a simulated recording, one frame per ``/ground_truth`` message.
+
+    Raises InputFileError if the recording has no such topic (e.g. a real recording).
+    """
+    if topic not in topics(path):
+        raise InputFileError(path, f'has no ground truth (no {topic} topic)')
+    frames = []
+    for _, _, msg in iter_messages(path, [topic]):
+        stamp, frame_id, objects = objects_from_marker_array(msg)
+        frames.append(GroundTruthFrame(stamp, frame_id, objects))
+    return frames
+
+
+def read_platform_truth(path: str | Path, topic: str = PLATFORM_TRUTH_TOPIC) -> PoseTrack:
+    if topic not in topics(path):
+        raise InputFileError(path, f'has no platform ground truth (no {topic} topic)')
+    return read_odometry(path, topic)
