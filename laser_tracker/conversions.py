@@ -336,3 +336,23 @@ def objects_from_marker_array(msg, ns: str | None = None) -> tuple[float, str, l
                                     y=float(marker.pose.position.y), vx=float(vx),
                                     vy=float(vy), extra=extra))
     return stamp, frame_id, objects
+
+
+# ---------------------------------------------------------------------------- active head
+
+
+def joint_state_msg(factory: MessageFactory, stamp: float, names, positions, velocities=()):
+    """sensor_msgs/JointState with the given joint names and positions (rad)."""
+    f = factory
+    as_f64 = (lambda v: np.asarray(v, dtype=np.float64)) if isinstance(f, _BagFactory) \
+        else (lambda v: [float(x) for x in v])
+    return f.make('sensor_msgs/msg/JointState', header=header(f, stamp, ''),
+                  name=list(names), position=as_f64(positions),
+                  velocity=as_f64(velocities), effort=as_f64(()))
+
+
+def point_stamped_msg(factory: MessageFactory, stamp: float, frame_id: str, x: float, y: float,
+                      z: float = 0.0):
+    f = factory
+    return f.make('geometry_msgs/msg/PointStamped', header=header(f, stamp, frame_id),
+                  point=f.make('geometry_msgs/msg/Point', x=float(x), y=float(y), z=float(z)))

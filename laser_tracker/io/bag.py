@@ -55,14 +55,18 @@ class BagWriter:
         self._writer.open()
         return self
 
-    def write(self, topic: str, msg, stamp: float) -> None:
-        """Append ``msg`` (a rosbags message) on ``topic`` with receive time ``stamp`` (s)."""
+    def write(self, topic: str, msg, stamp: float | int) -> None:
+        """Append ``msg`` (a rosbags message) on ``topic`` with receive time ``stamp``.
+
+        ``stamp`` is seconds (float) or, to keep a recording's times exactly, integer ns.
+        """
         msgtype = msg.__msgtype__
         conn = self._connections.get(topic)
         if conn is None:
             conn = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
             self._connections[topic] = conn
-        self._writer.write(conn, sec_to_ns(stamp), TYPESTORE.serialize_cdr(msg, msgtype))
+        ns = stamp if isinstance(stamp, int) else sec_to_ns(stamp)
+        self._writer.write(conn, ns, TYPESTORE.serialize_cdr(msg, msgtype))
 
     def __exit__(self, exc_type, exc, tb):
         try:

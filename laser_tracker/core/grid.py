@@ -1,0 +1,288 @@
+"""Occupancy grid around the scanner (paper Sec. 5, Fig. 4).
+
+An ``n x n`` grid of square cells (10 cm in the paper) centred on the scanner and aligned with
+its axes: ``grid[ix, iy]``, ``ix`` along the scanner's x (forward), ``iy`` along its y (left).
+Cell ``(ix, iy)`` has its centre at ``((ix + 0.5 - n/2) * res, (iy + 0.5 - n/2) * res)``.
+
+Every cell holds one of three values (METHOD.md Sec. 2, "our reading" of Fig. 5):
+
+* ``OCCUPIED``: a beam of this scan ended in the cell;
+* ``FREE``: a beam of this scan passed through the cell (it continued at least
+  ``free_margin`` beyond the cell centre, so a return near the cell does not free it);
+* ``UNKNOWN``: not observed (behind an obstacle, outside the field of view or beyond the
+  distance a beam freed).
+
+Ray casting, vectorised. Per (beam geometry, grid geometry) a :class:`RayTable` is computed
+once and cached, the way laser_geometry caches cos/sin per scan geometry: for every cell the
+beam whose direction passes nearest the cell centre and the range at which that beam reaches
+the centre (plus the margin). A beam thus covers the wedge of cells between it and its
+neighbours (its share of the field of view); at ranges where beams are further apart than a
+cell this leaves no unobserved stripes between beams. Per scan, casting all rays is then one
+gather and one comparison over the cells: ``FREE where reach[cell] < free_range[beam[cell]]``
+(``Scan.free_ranges``: a return frees space up to the hit, a no-return reading up to
+``no_return_free``, NaN nothing), after which the end points are marked ``OCCUPIED``.
+
+The previous grid is brought into the current scanner frame with the ego-motion estimate by
+:func:`transform_grid` (``scipy.ndimage.affine_transform``, order 0 = nearest cell, cells that
+come from outside the previous grid are ``UNKNOWN``). The difference map only needs the
+previous grid at the cells occupied now, so the per-scan path uses :func:`lookup_previous`,
+the same nearest-cell mapping evaluated at those cells only (a few hundred instead of the whole
+grid); the tests check that both agree.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy import ndimage
+
+from laser_tracker.config import param
+from laser_tracker.core.scan import Scan, beam_table
+
+UNKNOWN = np.uint8(0)
+FREE = np.uint8(1)
+OCCUPIED = np.uint8(2)
+PAD = 2   # UNKNOWN border of the grid buffers: neighbour reads need no bounds checks
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """Occupancy grid geometry and ray-casting parameters (node ``detection``, ``grid.*``)."""
+
+    resolution: float = param(0.1, 'Cell side in metres (paper: 10 cm gave the best results).',
+                              min=0.02, max=1.0)
+    size: float = param(16.0, 'Side of the square grid in metres, centred on the scanner; '
+                        'objects further than size/2 along either axis are not detected.',
+                        min=1.0, max=200.0)
+    free_margin: float = param(0.1, 'A cell is FREE only if a beam continued at least this far '
+                               '(m) beyond the cell centre; absorbs range noise so that a '
+                               'return near a cell boundary does not free the cell.',
+                               min=0.0, max=1.0)
+    no_return_free: float = param(8.0, 'Distance (m) freed along a beam that returned nothing '
+                                  '(inf or >= range_max); 0 = such beams free nothing.',
+                                  min=0.0, max=100.0)
+    free_erosion: int = param(1, 'Beams on each side whose free range also bounds a beam\'s '
+                              '(a minimum filter along the scan): 0 = each beam alone; 1 '
+                              'keeps cells at grazing walls from being FREE in one scan and '
+                              'OCCUPIED in the next.', min=0, max=10)
+
+    @property
+    def cells(self) -> int:
+        """Cells per side (even, so the scanner sits on a cell corner at the centre)."""
+        n = int(round(self.size / self.resolution))
+        return max(2, n + (n % 2))
+
+
+@dataclass(frozen=True)
+class RayTable:
+    """For every cell (padded flat index), the beam nearest its centre and the range needed to
+    free it.
+
+    ``beam[c] == n_beams`` means no beam covers the cell (outside the field of view).
+    """
+
+    beam: np.ndarray    # (n*n,) intp
+    reach: np.ndarray   # (n*n,) float32: cell-centre range + free margin
+    n_beams: int
+
+
+@lru_cache(maxsize=8)
+def ray_table(angle_min: float, angle_increment: float, n_beams: int, cells: int,
+              resolution: float, free_margin: float) -> RayTable:
+    """Cached ray table for one beam geometry and one grid geometry.
+
+    Indexed by the flat index of the *padded* grid (``cells + 2`` per side, see
+    :class:`GridBuilder`); the border cells have no beam and infinite reach (never FREE).
+    """
+    m = cells + 2 * PAD
+    c = (np.arange(m) - PAD + 0.5 - cells / 2.0) * resolution
+    cx, cy = np.meshgrid(c, c, indexing='ij')
+    rng = np.hypot(cx, cy).ravel()
+    bearing = np.arctan2(cy, cx).ravel()
+    inc = float(angle_increment)
+    # Fractional beam index of each cell's bearing, measured in the scan's direction of sweep.
+    delta = np.mod((bearing - angle_min) * math.copysign(1.0, inc), 2.0 * math.pi)
+    k = delta / abs(inc)
+    beam = np.rint(k)
+    wrapped = np.rint(k - 2.0 * math.pi / abs(inc))  # bearings just before angle_min
+    use_wrapped = (beam > n_beams - 1) & (wrapped >= 0) & (wrapped <= n_beams - 1)
+    beam = np.where(use_wrapped, wrapped, beam)
+    beam = np.where((beam >= 0) & (beam <= n_beams - 1), beam, n_beams).astype(np.intp)
+    reach = (rng + free_margin).astype(np.float32)
+    border = np.ones((m, m), bool)
+    border[PAD:-PAD, PAD:-PAD] = False
+    border = border.ravel()
+    beam[border] = n_beams
+    reach[border] = np.inf
+    beam.setflags(write=False)
+    reach.setflags(write=False)
+    return RayTable(beam=beam, reach=reach, n_beams=n_beams)
+
+
+def cell_centres(cells: int, resolution: float, flat: np.ndarray) -> np.ndarray:
+    """Centres (k, 2) in metres (scanner frame) of cells given by flat index."""
+    ix, iy = np.divmod(flat, cells)
+    half = cells / 2.0
+    return np.column_stack(((ix + 0.5 - half) * resolution, (iy + 0.5 - half) * resolution))
+
+
+@dataclass
+class GridFrame:
+    """One scan's grid and what the later stages need from it (valid until the next build
+    but one: two buffers alternate, so the previous frame survives one more build).
+
+    ``padded`` is the grid with a ``PAD``-cell UNKNOWN border, ``grid`` its interior view
+    (``grid[ix, iy]``); ``points`` the end points inside the grid in beam order (scanner
+    frame, metres), ``ij`` their cell indices (float, interior coordinates) and ``flat``
+    their flat index in the unpadded grid (one per point; a cell hit by several beams
+    appears several times).
+    """
+
+    padded: np.ndarray
+    points: np.ndarray
+    ij: np.ndarray
+    flat: np.ndarray
+
+    @property
+    def grid(self) -> np.ndarray:
+        return self.padded[PAD:-PAD, PAD:-PAD]
+
+    def occupied(self) -> np.ndarray:
+        """Sorted unique flat indices of the occupied cells."""
+        return np.unique(self.flat)
+
+
+class GridBuilder:
+    """Builds the occupancy grid of each scan into reusable buffers (no grid allocation per
+    scan). Flat indices into the padded buffer let the difference stage read a cell and its
+    neighbours with one gather and no bounds checks (the border is UNKNOWN)."""
+
+    def __init__(self, config: GridConfig):
+        self.config = config
+        self.cells = config.cells
+        m = self.cells + 2 * PAD
+        self._buffers = [np.zeros((m, m), np.uint8) for _ in range(2)]
+        self._which = 0
+        self._free_at_cell = np.empty(m * m, np.float32)
+        self._ext = np.empty(0, np.float32)
+
+    def table(self, scan: Scan) -> RayTable:
+        c = self.config
+        return ray_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams,
+                         self.cells, float(c.resolution), float(c.free_margin))
+
+    def build(self, scan: Scan) -> GridFrame:
+        c = self.config
+        n = self.cells
+        table = self.table(scan)
+        beams = scan.n_beams
+        if self._ext.size != beams + 1:
+            self._ext = np.empty(beams + 1, np.float32)   # beam count changed: tables adapt
+        ext = self._ext
+        # Scan.valid() and Scan.free_ranges() in one pass (same rules, fewer array passes).
+        r = scan.ranges
+        limit = min(c.no_return_free, scan.range_max)
+        with np.errstate(invalid='ignore'):
+            valid = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
+            no_return = r >= scan.range_max
+        fr = ext[:beams]
+        np.minimum(r, limit, out=fr, where=valid)
+        fr[~valid] = 0.0
+        fr[no_return] = limit
+        if c.free_erosion:
+            fr[:] = ndimage.minimum_filter1d(fr, 2 * c.free_erosion + 1, mode='nearest')
+        ext[beams] = -1.0   # "no beam": never free
+        padded = self._buffers[self._which]
+        self._which ^= 1
+        np.take(ext, table.beam, out=self._free_at_cell)
+        np.less(table.reach, self._free_at_cell, out=padded.reshape(-1).view(np.bool_))
+        # End points -> OCCUPIED cells.
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)
+        rv = r[valid]
+        pts = np.empty((rv.size, 2))
+        np.multiply(rv, cos[valid], out=pts[:, 0])
+        np.multiply(rv, sin[valid], out=pts[:, 1])
+        half = n * c.resolution / 2.0
+        inside = (np.abs(pts) < half).all(axis=1)
+        pts = pts[inside]
+        ij = np.floor(pts * (1.0 / c.resolution) + n / 2.0)
+        flat = (ij[:, 0] * n + ij[:, 1]).astype(np.intp)
+        m = n + 2 * PAD
+        padded.reshape(-1)[(ij[:, 0] * m + ij[:, 1] + PAD * (m + 1)).astype(np.intp)] = \
+            OCCUPIED
+        return GridFrame(padded=padded, points=pts, ij=ij, flat=flat)
+
+
+def build_grid(scan: Scan, config: GridConfig) -> np.ndarray:
+    """The occupancy grid of one scan (a fresh array)."""
+    return GridBuilder(config).build(scan).grid.copy()
+
+
+def _index_map(motion, cells: int, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index-space affine map from current-grid cells to previous-grid cells.
+
+    ``motion`` = (x, y, theta): the current scanner pose in the previous scanner frame.
+    A current cell at continuous index ``o`` (cell centres at integers) lies at
+    ``u = R o + offset`` in the previous grid.
+    """
+    x, y, theta = (float(v) for v in motion)
+    c, s = math.cos(theta), math.sin(theta)
+    rot = np.array([[c, -s], [s, c]])
+    centre = cells / 2.0 - 0.5
+    offset = np.array([centre, centre]) - rot @ np.array([centre, centre]) \
+        + np.array([x, y]) / resolution
+    return rot, offset
+
+
+def transform_grid(previous: np.ndarray, motion, resolution: float) -> np.ndarray:
+    """The previous grid resampled in the current scanner frame (nearest cell).
+
+    ``motion`` is the current scanner pose in the previous scanner frame (the ego-motion over
+    the time step). Cells that map outside the previous grid become ``UNKNOWN``.
+    """
+    cells = previous.shape[0]
+    rot, offset = _index_map(motion, cells, resolution)
+    return ndimage.affine_transform(previous, rot, offset=offset, order=0, mode='constant',
+                                    cval=int(UNKNOWN), output=np.uint8)
+
+
+def lookup_padded(padded: np.ndarray, motion, resolution: float, ij: np.ndarray,
+                  neighbourhood: int = 0) -> np.ndarray:
+    """Values of the transformed previous grid at current cells ``ij`` (k, 2) -> (k, m).
+
+    ``padded`` is the previous grid with its UNKNOWN border. Column 0 is the cell
+    itself (what :func:`transform_grid` gives there); with ``neighbourhood = 1`` columns 1..4
+    are its 4-neighbours in the previous grid, with ``neighbourhood = 2`` columns 1..8 its
+    8-neighbours. Cells outside the previous grid read UNKNOWN (the border).
+    """
+    m = padded.shape[0]
+    cells = m - 2 * PAD
+    rot, offset = _index_map(motion, cells, resolution)
+    uv = ij @ rot.T
+    uv += offset + 0.5
+    np.floor(uv, out=uv)                       # scipy's order-0 rounding: floor(x + 0.5)
+    np.clip(uv, -1, cells, out=uv)             # outside -> the UNKNOWN border
+    p = (uv[:, 0] * m + uv[:, 1] + PAD * (m + 1)).astype(np.intp)
+    k = 1 if neighbourhood <= 0 else (5 if neighbourhood == 1 else 9)
+    return padded.reshape(-1)[p[:, None] + _shift_offsets(m)[:k]]
+
+
+@lru_cache(maxsize=8)
+def _shift_offsets(m: int) -> np.ndarray:
+    out = _SHIFTS[:, 0] * m + _SHIFTS[:, 1]
+    out.setflags(write=False)
+    return out
+
+
+def lookup_previous(previous: np.ndarray, motion, resolution: float, flat: np.ndarray,
+                    neighbourhood: int = 0) -> np.ndarray:
+    """:func:`lookup_padded` for an unpadded grid and cells given by flat index."""
+    padded = np.pad(previous, PAD, constant_values=UNKNOWN)
+    ij = np.column_stack(np.divmod(flat, previous.shape[0])).astype(np.float64)
+    return lookup_padded(padded, motion, resolution, ij, neighbourhood)
+
+
+_SHIFTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1],
+                    [1, 1], [1, -1], [-1, 1], [-1, -1]], dtype=np.intp)

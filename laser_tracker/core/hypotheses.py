@@ -1,0 +1,479 @@
+"""Movement hypotheses: creation (paper Sec. 7) and management (Sec. 8), vectorised.
+
+A hypothesis is a possible moving object: position, velocity (its Kalman filter,
+``laser_tracker.core.kalman``), a weight 0..100 and the number of samples that support it.
+All hypotheses live in stacked arrays (:class:`HypothesisArrays`); one frame of blobs updates
+them all at once. Distances in Equations 2 and 3 are in ``distance_unit`` (the 10 cm grid
+cell: METHOD.md Sec. 4), positions in the odometry frame.
+
+Per frame (``Tracker.update(blobs)``):
+
+1. **Prediction** ``H_est`` of every hypothesis at the blobs' stamp.
+2. **Blob weights**, Equation 2: ``B_weight = 100 - sum_i max(50 - dist(H_est_i, B_pos), 0)``
+   clipped to 0..100; a blob above ``new_blob_threshold`` is *new*.
+3. **Gating and splitting**: every blob within ``gate`` metres of a prediction supports that
+   hypothesis; with several, the hypothesis splits, one copy per blob, each updated on its
+   own (this follows both legs of a walker).
+4. **Support**, Equation 3: ``H_weight += W_inc - W_dec * dist(B_pos, H_est)``, clipped to
+   0..100, and the blob goes to the Kalman filter; the samples count grows by one.
+5. **Wall penalty**: a hypothesis whose supporting blob lies on structure (a line of static
+   occupied cells, ``Blobs.structure``) and whose velocity is within ``wall_angle`` of that
+   line's direction has its weight multiplied by ``wall_factor`` (paper: halved).
+6. **Coasting**: a hypothesis without support moves on along its velocity and loses
+   ``coast_penalty`` weight (a short occlusion is bridged).
+7. **Creation**: each new blob pairs with every previous-frame blob within ``max_speed * dt``
+   (and at least ``min_displacement`` away: "seen in two separate locations"), creating a
+   hypothesis with the pair's velocity and ``initial_weight``.
+8. **Merging**: hypotheses within ``merge_distance`` of each other whose velocities differ by
+   less than ``merge_speed`` are one target (chains included): the group keeps the state of
+   its best-supported member and the identity of its oldest confirmed member.
+9. **Removal** below ``remove_below``; a hard bound ``max_hypotheses`` (the strongest are
+   kept, a warning is logged when the bound is hit).
+10. **Confirmation**: reported as a moving object once ``samples >= confirm_samples``
+    (paper: m = 4). A hypothesis' first sample is its creation pair.
+
+Identity. Each hypothesis has a ``track_id`` that is unique among the live hypotheses. On a
+split, the copy supported by the blob nearest the prediction keeps the parent's id, samples
+and confirmation; the other copies get new ids and restart at one sample (they carry the
+parent's velocity and weight but must earn their own confirmation). On a merge the group
+keeps the id of its oldest confirmed member (or of its oldest member if none is confirmed),
+so a person whose leg hypotheses split and merge again keeps one id.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from laser_tracker.config import param
+from laser_tracker.core.blobs import Blobs
+from laser_tracker.core.kalman import TrackFilter, KalmanConfig
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class HypothesisConfig:
+    """Hypothesis creation and management (node ``tracking``, ``hypotheses.*``)."""
+
+    distance_unit: float = param(0.1, 'Unit (m) of dist in Equations 2 and 3: the 10 cm grid '
+                                 'cell (METHOD.md Sec. 4).', min=0.001, max=10.0)
+    blob_radius: float = param(50.0, 'Eq. 2: hypotheses closer than this many distance units '
+                               "lower a blob's weight (the 50 of the equation).", min=0.0,
+                               max=1000.0)
+    new_blob_threshold: float = param(60.0, 'Eq. 2: a blob whose weight is above this is new '
+                                      'and creates hypotheses.', min=0.0, max=100.0)
+    max_speed: float = param(3.0, 'Largest target speed (m/s): a new blob pairs with previous '
+                             'blobs within max_speed * dt.', min=0.01, max=100.0)
+    min_displacement: float = param(0.1, 'A creation pair must be at least this far apart (m): '
+                                    'the blob was seen in two separate locations.', min=0.0,
+                                    max=10.0)
+    initial_weight: float = param(20.0, 'Weight of a new hypothesis ("low", paper Sec. 8).',
+                                  min=0.0, max=100.0)
+    w_inc: float = param(60.0, 'Eq. 3 W_inc (paper: 60).', min=0.0, max=100.0)
+    w_dec: float = param(15.0, 'Eq. 3 W_dec per distance unit (paper: 15).', min=0.0,
+                         max=100.0)
+    gate: float = param(0.7, 'Radius (m) around a prediction in which a blob supports the '
+                        'hypothesis (the search box of Fig. 6).', min=0.01, max=10.0)
+    coast_penalty: float = param(30.0, 'Weight lost per frame without a supporting blob.',
+                                 min=0.0, max=100.0)
+    remove_below: float = param(10.0, 'A hypothesis whose weight falls below this is removed.',
+                                min=0.0, max=100.0)
+    wall_factor: float = param(0.5, 'Weight factor for a hypothesis moving along structure '
+                               '(paper: halved).', min=0.0, max=1.0)
+    wall_angle: float = param(30.0, 'A velocity within this many degrees of the structure '
+                              'direction counts as moving along it.', min=0.0, max=90.0)
+    wall_min_speed: float = param(0.1, 'Below this speed (m/s) a hypothesis has no direction '
+                                  'and the wall test does not apply.', min=0.0, max=10.0)
+    confirm_samples: int = param(4, 'm: samples before a hypothesis is reported as a moving '
+                                 'object (paper: 4).', min=1, max=1000)
+    confirm_min_speed: float = param(0.2, 'A hypothesis is confirmed only while its speed is at '
+                                     'least this (m/s): a flicker in place (a thin chair leg '
+                                     'seen in one scan and missed in the next) is not a '
+                                     'moving object. 0 = paper.', min=0.0, max=10.0)
+    merge_distance: float = param(0.3, 'Hypotheses closer than this (m) ...', min=0.0,
+                                  max=10.0)
+    merge_speed: float = param(0.5, '... whose velocities differ by less than this (m/s) are '
+                               'duplicates of one target and merge.', min=0.0, max=100.0)
+    max_hypotheses: int = param(100, 'Hard bound on live hypotheses (the strongest are kept, '
+                                'with a warning).', min=1, max=100000)
+    max_blobs: int = param(500, 'At most this many blobs per frame are considered (the '
+                           'largest), bounding the work on a burst.', min=1, max=100000)
+    max_blob_range: float = param(50.0, 'Blobs further than this (m) from the scanner are '
+                                  'dropped with a warning (corrupt input).', min=0.1,
+                                  max=100000.0)
+    max_gap: float = param(2.0, 'A gap between frames longer than this (s) drops every '
+                           'hypothesis (predictions are meaningless).', min=0.01, max=3600.0)
+
+
+_ID, _T, _WEIGHT, _SAMPLES, _CONFIRMED, _SUPPORTED, _BORN = 0, 5, 8, 9, 10, 11, 12
+_STATE, _VEL, _POS = slice(1, 5), slice(3, 5), slice(6, 8)
+_P0 = 13
+
+
+class HypothesisArrays:
+    """All live hypotheses, one row each of a single float matrix.
+
+    One gather moves every field of the selected hypotheses at once (a split, a removal, a
+    merge), which keeps the per-frame cost independent of the number of fields. Fields are
+    column views: ``track_id`` (int, unique), ``state`` (k, 4) ``px, py, vx, vy`` valid at
+    ``t_state`` (the stamp of the last supporting blob, ``kalman.TrackFilter``), ``P``
+    (k, d, d), ``position`` (k, 2) the estimate at the current frame, ``velocity`` (k, 2),
+    ``weight`` 0..100, ``samples``, ``confirmed``, ``supported`` (a blob supported it this
+    frame) and ``born`` (creation stamp).
+    """
+
+    __slots__ = ('data', 'dim')
+
+    def __init__(self, data: np.ndarray, dim: int):
+        self.data = data
+        self.dim = dim
+
+    @classmethod
+    def empty(cls, dim: int, n: int = 0) -> HypothesisArrays:
+        return cls(np.zeros((n, _P0 + dim * dim)), dim)
+
+    def __len__(self) -> int:
+        return int(self.data.shape[0])
+
+    def take(self, index) -> HypothesisArrays:
+        return HypothesisArrays(self.data[index], self.dim)
+
+    @staticmethod
+    def concat(parts: list[HypothesisArrays]) -> HypothesisArrays:
+        parts = [p for p in parts if len(p)] or parts[:1]
+        if len(parts) == 1:
+            return parts[0]
+        return HypothesisArrays(np.concatenate([p.data for p in parts]), parts[0].dim)
+
+    # Fields (views where the type allows; flags and counts are stored as floats).
+    track_id = property(lambda self: self.data[:, _ID].astype(np.int64),
+                        lambda self, v: self.data.__setitem__((slice(None), _ID), v))
+    state = property(lambda self: self.data[:, _STATE],
+                     lambda self, v: self.data.__setitem__((slice(None), _STATE), v))
+    velocity = property(lambda self: self.data[:, _VEL])
+    t_state = property(lambda self: self.data[:, _T],
+                       lambda self, v: self.data.__setitem__((slice(None), _T), v))
+    position = property(lambda self: self.data[:, _POS],
+                        lambda self, v: self.data.__setitem__((slice(None), _POS), v))
+    weight = property(lambda self: self.data[:, _WEIGHT],
+                      lambda self, v: self.data.__setitem__((slice(None), _WEIGHT), v))
+    samples = property(lambda self: self.data[:, _SAMPLES].astype(np.int64),
+                       lambda self, v: self.data.__setitem__((slice(None), _SAMPLES), v))
+    confirmed = property(lambda self: self.data[:, _CONFIRMED] > 0.5,
+                         lambda self, v: self.data.__setitem__((slice(None), _CONFIRMED), v))
+    supported = property(lambda self: self.data[:, _SUPPORTED] > 0.5,
+                         lambda self, v: self.data.__setitem__((slice(None), _SUPPORTED), v))
+    born = property(lambda self: self.data[:, _BORN],
+                    lambda self, v: self.data.__setitem__((slice(None), _BORN), v))
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.data[:, _P0:].reshape(-1, self.dim, self.dim)
+
+    @P.setter
+    def P(self, value) -> None:
+        self.data[:, _P0:] = np.asarray(value).reshape(self.data.shape[0], -1)
+
+
+@dataclass
+class FrameResult:
+    """What one tracker update reports."""
+
+    stamp: float
+    hypotheses: HypothesisArrays
+    newly_confirmed: np.ndarray   # (j,) indices into hypotheses: confirmed this frame
+    created: int                  # hypotheses created this frame
+    bounded: bool                 # the max_hypotheses bound was hit
+
+
+class Tracker:
+    """Hypothesis tracking over frames of blobs (the ``tracking`` node's core)."""
+
+    def __init__(self, config: HypothesisConfig | None = None,
+                 kalman: KalmanConfig | None = None):
+        self.config = config or HypothesisConfig()
+        self.filter = TrackFilter(kalman or KalmanConfig())
+        self.next_id = 1
+        self.stats = {'created': 0, 'confirmed': 0, 'splits': 0, 'merged': 0,
+                      'bound_hits': 0, 'resets': 0, 'blobs_dropped': 0}
+        self._bound_active = False
+        self.reset()
+
+    # ------------------------------------------------------------------ state handling
+    def reset(self, reason: str | None = None) -> None:
+        """Forget every hypothesis and the previous blobs (ids keep counting up)."""
+        if reason:
+            log.warning('tracker reset: %s', reason)
+            self.stats['resets'] += 1
+        self.hyp = HypothesisArrays.empty(self.filter.dim)
+        self.prev_xy = np.zeros((0, 2))
+        self.prev_stamp: float | None = None
+
+    def _new_ids(self, n: int) -> np.ndarray:
+        ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
+        self.next_id += n
+        return ids
+
+    def _clean(self, blobs: Blobs) -> tuple[np.ndarray, np.ndarray]:
+        """Usable blobs (finite, near the scanner, at most max_blobs): positions and mask."""
+        c = self.config
+        xy = np.asarray(blobs.xy, dtype=float).reshape(-1, 2)
+        if xy.shape[0] == 0:
+            return xy, np.zeros(0, bool)
+        origin = np.asarray(blobs.origin, dtype=float)[:2]
+        ok = np.isfinite(xy).all(axis=1)
+        if np.isfinite(origin).all():
+            with np.errstate(invalid='ignore'):
+                ok &= ((xy - origin) ** 2).sum(axis=1) <= c.max_blob_range ** 2
+        if not ok.all():
+            log.warning('t=%.3f: dropped %d blob(s) that are not finite or further than '
+                        '%.1f m from the scanner', blobs.stamp, int((~ok).sum()),
+                        c.max_blob_range)
+            self.stats['blobs_dropped'] += int((~ok).sum())
+        if ok.sum() > c.max_blobs:
+            kept = np.flatnonzero(ok)
+            cells = np.asarray(blobs.cells)[kept] if len(blobs.cells) == len(ok) else None
+            order = np.argsort(-cells, kind='stable') if cells is not None else \
+                np.arange(kept.size)
+            ok = np.zeros_like(ok)
+            ok[kept[order[:c.max_blobs]]] = True
+            log.warning('t=%.3f: %d blobs, only the %d largest are tracked (max_blobs)',
+                        blobs.stamp, kept.size, c.max_blobs)
+        return xy[ok], ok
+
+    # ------------------------------------------------------------------------ the frame
+    def update(self, blobs: Blobs) -> FrameResult:
+        """One frame: the blobs of one scan (odometry frame) -> updated hypotheses."""
+        c = self.config
+        t = float(blobs.stamp)
+        if not math.isfinite(t):
+            log.warning('blobs with a non-finite stamp ignored')
+            return self._result(t, np.zeros(0, np.intp), 0, False)
+        if self.prev_stamp is not None:
+            if t < self.prev_stamp:
+                self.reset(f'time went backwards ({self.prev_stamp:.3f} -> {t:.3f} s)')
+            elif t == self.prev_stamp:
+                log.warning('t=%.3f: blobs with the same stamp as the previous frame ignored',
+                            t)
+                return self._result(t, np.zeros(0, np.intp), 0, False)
+            elif t - self.prev_stamp > c.max_gap:
+                self.reset(f'gap of {t - self.prev_stamp:.3f} s > max_gap')
+        xy, ok = self._clean(blobs)
+        structure = np.asarray(blobs.structure, dtype=float).reshape(-1)
+        if structure.shape[0] == ok.shape[0]:
+            structure = structure[ok]
+        if structure.shape[0] != xy.shape[0]:
+            structure = np.full(xy.shape[0], np.nan)
+
+        hyp = self.hyp
+        k, b = len(hyp), xy.shape[0]
+        if k == 0 and (b == 0 or self.prev_xy.shape[0] == 0):
+            self.prev_xy, self.prev_stamp = xy, t
+            return self._result(t, np.zeros(0, np.intp), 0, False)
+
+        unit = c.distance_unit
+        if k:
+            pred = self.filter.predict(hyp.state, hyp.t_state, t)
+            dist = np.sqrt(((pred[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)) \
+                if b else np.zeros((k, 0))
+        else:
+            pred = np.zeros((0, 2))
+            dist = np.zeros((0, b))
+
+        # Equation 2 on the predictions of the existing hypotheses.
+        if b:
+            b_weight = 100.0 - np.maximum(c.blob_radius - dist / unit, 0.0).sum(axis=0)
+            b_weight = np.clip(b_weight, 0.0, 100.0)
+            new_blob = b_weight > c.new_blob_threshold
+        else:
+            b_weight = np.zeros(0)
+            new_blob = np.zeros(0, bool)
+
+        parts = []
+        # Gating, splitting and Equation 3.
+        gate = dist <= c.gate
+        hi, bi = np.nonzero(gate)
+        if hi.size:
+            parts.append(self._support(hyp, pred, dist, hi, bi, xy, structure, t))
+        unsupported = ~gate.any(axis=1) if k else np.zeros(0, bool)
+        if unsupported.any():
+            parts.append(self._coast(hyp.take(unsupported), pred[unsupported]))
+
+        # Creation from new blobs and the previous frame's blobs.
+        created = 0
+        if new_blob.any() and self.prev_xy.shape[0] and self.prev_stamp is not None:
+            dt = t - self.prev_stamp
+            new_idx = np.flatnonzero(new_blob)
+            disp = np.sqrt(((xy[new_idx, None, :] - self.prev_xy[None, :, :]) ** 2).sum(axis=2))
+            pair = (disp <= c.max_speed * dt) & (disp >= c.min_displacement)
+            ni, pi = np.nonzero(pair)
+            if ni.size:
+                if ni.size > c.max_hypotheses:   # a burst: the pairs of the strongest blobs
+                    order = np.lexsort((disp[ni, pi], -b_weight[new_idx[ni]]))
+                    ni, pi = ni[order[:c.max_hypotheses]], pi[order[:c.max_hypotheses]]
+                born = self._create(xy[new_idx[ni]], self.prev_xy[pi], dt, t,
+                                    structure[new_idx[ni]])
+                created = len(born)
+                parts.append(born)
+
+        hyp = HypothesisArrays.concat(parts) if parts else HypothesisArrays.empty(
+            self.filter.dim)
+        was_confirmed = hyp.confirmed.copy()
+        hyp, was_confirmed = self._merge(hyp, was_confirmed)
+        keep = hyp.weight >= c.remove_below
+        if not keep.all():
+            hyp, was_confirmed = hyp.take(keep), was_confirmed[keep]
+        bounded = len(hyp) > c.max_hypotheses
+        if bounded:
+            order = np.lexsort((-hyp.samples, -hyp.weight, ~hyp.confirmed))
+            top = np.sort(order[:c.max_hypotheses])
+            self.stats['bound_hits'] += 1
+            if not self._bound_active:
+                log.warning('t=%.3f: %d hypotheses exceed max_hypotheses=%d: the %d strongest '
+                            'are kept (further hits are counted, not logged, until it clears)',
+                            t, len(hyp), c.max_hypotheses, c.max_hypotheses)
+            hyp, was_confirmed = hyp.take(top), was_confirmed[top]
+        self._bound_active = bounded
+        ready = hyp.samples >= c.confirm_samples
+        if c.confirm_min_speed > 0:
+            ready &= (hyp.velocity ** 2).sum(axis=1) >= c.confirm_min_speed ** 2
+        hyp.confirmed = hyp.confirmed | ready
+        newly = np.flatnonzero(hyp.confirmed & ~was_confirmed)
+        self.stats['confirmed'] += int(newly.size)
+        self.hyp = hyp
+        self.prev_xy, self.prev_stamp = xy, t
+        return self._result(t, newly, created, bounded)
+
+    def _result(self, t, newly, created, bounded) -> FrameResult:
+        return FrameResult(stamp=t, hypotheses=self.hyp, newly_confirmed=newly,
+                           created=created, bounded=bounded)
+
+    # ------------------------------------------------------------------------ the steps
+    def _support(self, hyp: HypothesisArrays, pred, dist, hi, bi, xy, structure,
+                 t) -> HypothesisArrays:
+        """One copy of hypothesis hi[j] per supporting blob bi[j]: Eq. 3, Kalman, wall test."""
+        c = self.config
+        out = hyp.take(hi)
+        d = dist[hi, bi]
+        state, P, position = self.filter.correct(out.state, out.P, out.t_state, xy[bi], t)
+        data = out.data
+        data[:, _STATE] = state
+        out.P = P
+        data[:, _POS] = position
+        data[:, _T] = t
+        weight = np.clip(data[:, _WEIGHT] + (c.w_inc - c.w_dec / c.distance_unit * d),
+                         0.0, 100.0)
+        data[:, _WEIGHT] = self._wall(weight, state[:, 2:], structure[bi])
+        data[:, _SAMPLES] += 1.0
+        data[:, _SUPPORTED] = 1.0
+        # Identity on a split: the copy nearest its prediction continues the parent.
+        if hi.size > 1 and np.any(hi[1:] == hi[:-1]):
+            order = np.lexsort((d, hi))
+            extra = np.zeros(hi.size, bool)
+            extra[order[1:]] = hi[order][1:] == hi[order][:-1]
+            n_extra = int(extra.sum())
+            data[extra, _ID] = self._new_ids(n_extra)
+            data[extra, _SAMPLES] = 1.0
+            data[extra, _CONFIRMED] = 0.0
+            self.stats['splits'] += n_extra
+            self.stats['created'] += n_extra
+        return out
+
+    def _coast(self, hyp: HypothesisArrays, pred) -> HypothesisArrays:
+        """No supporting blob: continue along the velocity with a reduced weight."""
+        hyp.P = self.filter.coast(hyp.P)
+        data = hyp.data
+        data[:, _POS] = pred
+        data[:, _WEIGHT] = np.maximum(data[:, _WEIGHT] - self.config.coast_penalty, 0.0)
+        data[:, _SUPPORTED] = 0.0
+        return hyp
+
+    def _create(self, new_xy, prev_xy, dt, t, structure) -> HypothesisArrays:
+        n = new_xy.shape[0]
+        state, P = self.filter.initial(new_xy, prev_xy, np.full(n, dt))
+        out = HypothesisArrays.empty(self.filter.dim, n)
+        data = out.data
+        data[:, _ID] = self._new_ids(n)
+        data[:, _STATE] = state
+        out.P = P
+        data[:, _T] = t
+        data[:, _POS] = new_xy
+        data[:, _WEIGHT] = self._wall(np.full(n, self.config.initial_weight), state[:, 2:],
+                                      structure)
+        data[:, _SAMPLES] = 1.0
+        data[:, _SUPPORTED] = 1.0
+        data[:, _BORN] = t
+        self.stats['created'] += n
+        return out
+
+    def _wall(self, weight, velocity, structure) -> np.ndarray:
+        """Multiply by wall_factor where the velocity runs along the blob's structure line."""
+        c = self.config
+        has = ~np.isnan(structure)
+        if not has.any():
+            return weight
+        speed = np.hypot(velocity[:, 0], velocity[:, 1])
+        heading = np.arctan2(velocity[:, 1], velocity[:, 0])
+        diff = np.abs(np.mod(heading - np.where(has, structure, 0.0) + np.pi / 2, np.pi)
+                      - np.pi / 2)
+        along = has & (speed >= c.wall_min_speed) & (diff <= math.radians(c.wall_angle))
+        return np.where(along, weight * c.wall_factor, weight)
+
+    def _merge(self, hyp: HypothesisArrays, was_confirmed: np.ndarray):
+        """Collapse groups of duplicates (close in position and velocity) into one row each."""
+        c = self.config
+        k = len(hyp)
+        if k < 2 or c.merge_distance <= 0:
+            return hyp, was_confirmed
+        data = hyp.data
+        pos, vel = data[:, _POS], data[:, _VEL]
+        dp = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=2)
+        dv = ((vel[:, None, :] - vel[None, :, :]) ** 2).sum(axis=2)
+        close = (dp <= c.merge_distance ** 2) & (dv <= c.merge_speed ** 2)
+        a, b = np.nonzero(np.triu(close, 1))
+        if a.size == 0:
+            return hyp, was_confirmed
+        group = _components(k, a, b)
+        # State: the best-supported member (supported now, then weight, then samples).
+        state_key = np.lexsort((-data[:, _SAMPLES], -data[:, _WEIGHT], -data[:, _SUPPORTED]))
+        rank = np.empty(k, np.intp)
+        rank[state_key] = np.arange(k)
+        best = np.full(k, k, np.intp)
+        np.minimum.at(best, group, rank)
+        keep = rank == best[group]
+        # Identity: the oldest confirmed member, else the oldest member (smallest id).
+        ident_key = np.lexsort((data[:, _ID], -data[:, _CONFIRMED]))
+        irank = np.empty(k, np.intp)
+        irank[ident_key] = np.arange(k)
+        ibest = np.full(k, k, np.intp)
+        np.minimum.at(ibest, group, irank)
+        donor = ident_key[ibest[group]]          # row whose identity each row's group keeps
+        samples = np.zeros(k)
+        np.maximum.at(samples, group, data[:, _SAMPLES])
+        rows = np.flatnonzero(keep)
+        out = hyp.take(rows)
+        od = out.data
+        src = donor[rows]
+        od[:, _ID] = data[src, _ID]
+        od[:, _CONFIRMED] = np.maximum(data[src, _CONFIRMED], od[:, _CONFIRMED])
+        od[:, _SAMPLES] = samples[group[rows]]
+        od[:, _BORN] = data[src, _BORN]
+        self.stats['merged'] += int(k - rows.size)
+        return out, was_confirmed[src]
+
+
+def _components(k: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected components (label = smallest member index) of k nodes with edges a-b."""
+    label = np.arange(k)
+    while True:
+        m = np.minimum(label[a], label[b])
+        new = label.copy()
+        np.minimum.at(new, a, m)
+        np.minimum.at(new, b, m)
+        new = new[new]
+        if np.array_equal(new, label):
+            return label
+        label = new

@@ -1,0 +1,156 @@
+"""Kalman filters of the hypotheses (paper Sec. 9), vectorised over all hypotheses.
+
+Paper mode (the reference). The constant-velocity parameters reduce the textbook equations
+(4)-(8) to A = H = I on a two-dimensional state, Equations (9)-(13)::
+
+    x-  = x(t-1)                 (9)      P-  = P(t-1) + Q          (10)
+    K   = P- (P- + R)^-1         (13)     x   = x- + K (z - x-)      (11)
+    P   = (I - K) P-             (12)
+
+with Q = 0.0005 I and R = 0.006 I (Eq. 14, 15). Following METHOD.md Sec. 6 the state is the
+target's *velocity* and z the velocity measured from the supporting blob's displacement since
+the hypothesis' last supporting blob; the position prediction is that blob's position plus
+velocity times the elapsed time, and a supported hypothesis moves to its blob.
+
+Alternative mode ``cv``: the full constant-velocity filter on [x, y, vx, vy] with the blob
+position as measurement (white-acceleration process noise), measured against the paper mode
+in /work/notes/tracking-readme.md.
+
+Every function takes stacked arrays: states (k, d) and covariances (k, d, d); there is no
+per-hypothesis Python loop. :class:`TrackFilter` gives the tracker one interface over both
+modes: a state row is always ``[px, py, vx, vy]`` valid at the hypothesis' ``t_state``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from laser_tracker.config import param
+
+
+@dataclass(frozen=True)
+class KalmanConfig:
+    """Filter of each hypothesis (node ``tracking``, ``kalman.*``)."""
+
+    mode: str = param('paper', "'paper': state = 2D velocity, A = H = I (Eq. 9-13), z = blob "
+                      "displacement / dt; 'cv': state [x, y, vx, vy] constant velocity, "
+                      'z = blob position.', choices=('paper', 'cv'))
+    q: float = param(0.0005, 'Paper mode: process noise Q = q I per step (Eq. 14).',
+                     min=0.0, max=100.0)
+    r: float = param(0.006, 'Paper mode: measurement noise R = r I (Eq. 15).',
+                     min=1e-9, max=100.0)
+    cv_accel_noise: float = param(2.0, 'cv mode: white-acceleration spectral density '
+                                  '(m^2/s^3) of the process noise.', min=0.0, max=1000.0)
+    cv_position_noise: float = param(0.01, 'cv mode: variance (m^2) of a blob centroid as a '
+                                     'measurement of the target position.', min=1e-9,
+                                     max=100.0)
+
+
+def _inv2(s: np.ndarray) -> np.ndarray:
+    """Inverse of stacked 2 x 2 matrices (k, 2, 2)."""
+    a, b, c, d = s[:, 0, 0], s[:, 0, 1], s[:, 1, 0], s[:, 1, 1]
+    det = a * d - b * c
+    out = np.empty_like(s)
+    out[:, 0, 0], out[:, 0, 1] = d / det, -b / det
+    out[:, 1, 0], out[:, 1, 1] = -c / det, a / det
+    return out
+
+
+def predict_velocity(x: np.ndarray, P: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 9 and 10: x- = x, P- = P + Q (stacked)."""
+    return x, P + q * np.eye(2)
+
+
+def update_velocity(x_pred: np.ndarray, P_pred: np.ndarray, z: np.ndarray,
+                    r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 13, 11, 12 with H = I (stacked): gain, state and covariance."""
+    K = P_pred @ _inv2(P_pred + r * np.eye(2))
+    x = x_pred + np.einsum('kij,kj->ki', K, z - x_pred)
+    P = (np.eye(2) - K) @ P_pred
+    return x, P
+
+
+def cv_predict(x: np.ndarray, P: np.ndarray, dt: np.ndarray,
+               accel_noise: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity prediction over ``dt`` (k,) with white-acceleration noise."""
+    dt = np.asarray(dt, dtype=float)
+    k = x.shape[0]
+    F = np.broadcast_to(np.eye(4), (k, 4, 4)).copy()
+    F[:, 0, 2] = dt
+    F[:, 1, 3] = dt
+    x = x.copy()
+    x[:, :2] += x[:, 2:] * dt[:, None]
+    Q = np.zeros((k, 4, 4))
+    q3, q2, q1 = accel_noise * dt ** 3 / 3.0, accel_noise * dt ** 2 / 2.0, accel_noise * dt
+    for i in (0, 1):
+        Q[:, i, i], Q[:, i + 2, i + 2] = q3, q1
+        Q[:, i, i + 2] = Q[:, i + 2, i] = q2
+    P = F @ P @ F.transpose(0, 2, 1) + Q
+    return x, P
+
+
+def cv_update(x: np.ndarray, P: np.ndarray, z: np.ndarray,
+              r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Position measurement update, H = [I 0], R = r I (stacked)."""
+    S = P[:, :2, :2] + r * np.eye(2)
+    K = P[:, :, :2] @ _inv2(S)                       # (k, 4, 2)
+    x = x + np.einsum('kij,kj->ki', K, z - x[:, :2])
+    P = P - K @ P[:, :2, :]
+    return x, P
+
+
+class TrackFilter:
+    """The operations the tracker needs, in either mode, on rows ``[px, py, vx, vy]``."""
+
+    def __init__(self, config: KalmanConfig):
+        self.config = config
+        self.paper = config.mode == 'paper'
+        self.dim = 2 if self.paper else 4
+
+    def initial(self, pos_new: np.ndarray, pos_prev: np.ndarray,
+                dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """State and covariance of hypotheses created from blob pairs (prev -> new over dt)."""
+        dt = np.asarray(dt, dtype=float)
+        k = pos_new.shape[0]
+        vel = (pos_new - pos_prev) / dt[:, None]
+        state = np.hstack((pos_new, vel))
+        if self.paper:
+            # The first velocity measurement, with the measurement's own covariance.
+            P = np.broadcast_to(self.config.r * np.eye(2), (k, 2, 2)).copy()
+        else:
+            r = self.config.cv_position_noise
+            P = np.zeros((k, 4, 4))
+            P[:, 0, 0] = P[:, 1, 1] = r
+            P[:, 2, 2] = P[:, 3, 3] = 2.0 * r / dt ** 2
+            P[:, 0, 2] = P[:, 2, 0] = P[:, 1, 3] = P[:, 3, 1] = r / dt
+        return state, P
+
+    @staticmethod
+    def predict(state: np.ndarray, t_state: np.ndarray, t: float) -> np.ndarray:
+        """Predicted positions (k, 2) at time ``t``."""
+        return state[:, :2] + state[:, 2:] * (t - t_state)[:, None]
+
+    def correct(self, state: np.ndarray, P: np.ndarray, t_state: np.ndarray,
+                blob: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Update with supporting blobs (k, 2) at ``t``; returns state, P, position estimate."""
+        dt = np.maximum(t - t_state, 1e-6)
+        if self.paper:
+            z = (blob - state[:, :2]) / dt[:, None]
+            v, Pp = predict_velocity(state[:, 2:], P, self.config.q)
+            v, P = update_velocity(v, Pp, z, self.config.r)
+            out = np.hstack((blob, v))
+            return out, P, blob
+        x, Pp = cv_predict(state, P, dt, self.config.cv_accel_noise)
+        x, P = cv_update(x, Pp, blob, self.config.cv_position_noise)
+        return x, P, x[:, :2]
+
+    def coast(self, P: np.ndarray) -> np.ndarray:
+        """A frame without support: the prediction step only (paper: P- = P + Q).
+
+        In cv mode the state stays at its last update time and the next prediction spans the
+        whole gap, so nothing changes here.
+        """
+        if self.paper:
+            return P + self.config.q * np.eye(2)
+        return P

@@ -1,0 +1,85 @@
+"""Node ``active_head``: point the pan/tilt cameras at tracked targets, leading them.
+
+Subscribes ``tracks`` (MarkerArray, moving-object schema, odometry frame; confirmed tracks)
+and ``ego_motion`` (nav_msgs/Odometry: the platform pose in the same frame). Publishes
+``head/command`` (sensor_msgs/JointState: pan and tilt positions in rad) and ``head/target``
+(geometry_msgs/PointStamped: the aim point, where the target will be after the lead time).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import rclpy
+from geometry_msgs.msg import PointStamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from visualization_msgs.msg import MarkerArray
+
+from laser_tracker.config import param
+from laser_tracker.conversions import (joint_state_msg, objects_from_marker_array,
+                                       odometry_from_msg, point_stamped_msg, ros_factory)
+from laser_tracker.core.head import HeadConfig, HeadPointer
+from laser_tracker.nodes.params import declare_section
+
+
+@dataclass(frozen=True)
+class ActiveHeadNodeConfig:
+    pan_joint: str = param('head_pan_joint', 'Name of the pan joint in head/command.')
+    tilt_joint: str = param('head_tilt_joint', 'Name of the tilt joint in head/command.')
+    max_pose_age: float = param(1.0, 'Tracks are aimed at only if the latest ego-motion pose '
+                                     'is at most this old (s) relative to them.', min=0.0,
+                                max=60.0)
+
+
+class ActiveHeadNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('active_head', **kwargs)
+        self.node_config = declare_section(self, ActiveHeadNodeConfig, '')
+        self.pointer = HeadPointer(declare_section(self, HeadConfig, 'head'))
+        self.factory = ros_factory()
+        self.pose = None
+        self.command_pub = self.create_publisher(JointState, 'head/command', 10)
+        self.target_pub = self.create_publisher(PointStamped, 'head/target', 10)
+        self.create_subscription(Odometry, 'ego_motion', self.on_pose, qos_profile_sensor_data)
+        self.create_subscription(MarkerArray, 'tracks', self.on_tracks, 10)
+
+    def on_pose(self, msg: Odometry) -> None:
+        self.pose = odometry_from_msg(msg)
+
+    def on_tracks(self, msg: MarkerArray) -> None:
+        stamp, frame_id, objects = objects_from_marker_array(msg)
+        if not objects:
+            return
+        if self.pose is None or abs(stamp - self.pose.stamp) > self.node_config.max_pose_age:
+            self.get_logger().warning('no recent ego_motion pose: not aiming the head',
+                                      throttle_duration_sec=5.0)
+            return
+        tracks = [(o.id, o.x, o.y, o.vx, o.vy, float(o.extra.get('weight', 0.0)))
+                  for o in objects]
+        cmd = self.pointer.update(stamp, self.pose.pose, tracks)
+        if cmd is None:
+            return
+        cfg = self.node_config
+        self.command_pub.publish(joint_state_msg(self.factory, stamp,
+                                                 [cfg.pan_joint, cfg.tilt_joint],
+                                                 [cmd.pan, cmd.tilt]))
+        self.target_pub.publish(point_stamped_msg(self.factory, stamp, frame_id or 'odom',
+                                                  cmd.aim_x, cmd.aim_y))
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = ActiveHeadNode()
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,361 @@
+"""The named scenarios: the paper's experiments (METHOD.md, "Experiments") and harder scenes.
+
+Each is a function ``name(seed) -> Scenario``. The layout and the paths are fixed (they
+reproduce an experiment); the seed draws the details: furniture jitter and clutter, each
+person's legs (radius 5-7 cm, 12-20 cm apart), the range noise, dropouts and
+spurious returns, and the odometry noise and jitter. Frames: the world frame is ``map``; the
+platform starts at the pose its trajectory gives at t = 0, where ``odom`` coincides with
+``map``.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from laser_tracker.sim.agents import GaitConfig, PathBuilder, Person, Robot
+from laser_tracker.sim.lidar import LidarConfig
+from laser_tracker.sim.platform import OdometryConfig
+from laser_tracker.sim.recorder import Scenario
+from laser_tracker.sim.world import World
+
+DEG = math.pi / 180.0
+# The 55 s recordings carry odometry at 25 Hz instead of 50 Hz: an Odometry message is 724
+# bytes (two 36-double covariances), and 55 s at 50 Hz alone would be 2 MB of the 3 MB budget.
+LONG_RUN_ODOMETRY_HZ = 25.0
+
+
+def _doc(func) -> str:
+    return ' '.join(func.__doc__.split())
+
+
+def _scene_rng(seed: int) -> np.random.Generator:
+    return np.random.default_rng([seed, 0])
+
+
+def _person(rng: np.random.Generator, id: int, path: PathBuilder) -> Person:
+    gait = GaitConfig(leg_radius=float(rng.uniform(0.05, 0.07)),
+                      leg_spacing=float(rng.uniform(0.12, 0.20)))
+    return Person(id, path.build(), gait)
+
+
+def _walk(t0: float, start, *moves) -> PathBuilder:
+    """A walker's path: ``moves`` are ``(x, y, speed)`` legs or a float pause (s).
+
+    A turn of more than 45 deg between two legs without a pause is rounded off the way
+    people walk it: the corner is cut 0.35 m (at most 40 % of either leg) before and after.
+    """
+    pts = [(float(start[0]), float(start[1]))] + [(m[0], m[1]) for m in moves
+                                                 if not isinstance(m, (int, float))]
+    plan, idx = [], 0
+    for m in moves:
+        if isinstance(m, (int, float)):
+            plan.append(float(m))
+            continue
+        idx += 1
+        plan.append((idx, m[2]))
+    b = PathBuilder(t0, *start)
+    for n, item in enumerate(plan):
+        if isinstance(item, float):
+            b.wait(item)
+            continue
+        i, speed = item
+        nxt = plan[n + 1] if n + 1 < len(plan) else None
+        p0, p1 = np.array(b.pose[:2]), np.array(pts[i])
+        if isinstance(nxt, tuple):
+            p2 = np.array(pts[nxt[0]])
+            a, c = p1 - p0, p2 - p1
+            la, lc = np.linalg.norm(a), np.linalg.norm(c)
+            turn = math.acos(max(-1.0, min(1.0, float(a @ c) / (la * lc))))
+            if turn > math.radians(45):
+                cut = min(0.35, 0.4 * la, 0.4 * lc)
+                q0, q1 = p1 - a / la * cut, p1 + c / lc * cut
+                b.go(*q0, speed)
+                b.go(*q1, 0.5 * (speed + nxt[1]))
+                continue
+        b.go(*p1, speed)
+    return b
+
+
+def _jitter(rng: np.random.Generator, scale: float = 0.05) -> float:
+    return float(rng.uniform(-scale, scale))
+
+
+def _scatter(world: World, rng: np.random.Generator, zone, count: int) -> None:
+    """Small clutter (bins, bags, boxes, chairs) at random places inside ``zone``."""
+    x0, y0, x1, y1 = zone
+    for _ in range(count):
+        x, y = float(rng.uniform(x0, x1)), float(rng.uniform(y0, y1))
+        kind = int(rng.integers(4))
+        if kind == 0:
+            world.circle(x, y, float(rng.uniform(0.1, 0.2)))             # bin, pot
+        elif kind == 1:
+            world.box(x, y, float(rng.uniform(0.3, 0.6)), float(rng.uniform(0.25, 0.45)),
+                      float(rng.uniform(0, math.pi)))                     # crate, bag
+        elif kind == 2:
+            world.chair(x, y, float(rng.uniform(0, math.pi)))
+        else:
+            world.circle(x, y, float(rng.uniform(0.03, 0.05)))           # coat stand, pole
+
+
+def _stationary(t_end: float, pose=(0.0, 0.0, 0.0)) -> PathBuilder:
+    return PathBuilder(0.0, *pose).wait(t_end)
+
+
+# --------------------------------------------------------------------------------- exp1
+def exp1_stationary_single_walker(seed: int = 1) -> Scenario:
+    """Stationary platform in a cluttered room; one person walks 4 constant-velocity paths,
+    leaves through the door for about 4 s and comes back. 30 s, 143 scans (4.77 Hz)."""
+    rng = _scene_rng(seed)
+    w = World()
+    w.room(-0.8, -4.0, 7.0, 4.0, doors=[('north', 5.2, 0.9)])
+    w.polyline([(-0.8, 4.0), (-0.8, 6.0), (10.0, 6.0)])              # corridor outside
+    j = lambda: _jitter(rng)  # noqa: E731
+    w.box(3.0 + j(), -3.7, 1.6, 0.6)                                 # desk, south wall
+    w.chair(3.3 + j(), -2.9 + j(), 0.2 + j())
+    w.table(5.8 + j(), -2.2 + j(), 1.2, 0.8)                         # meeting table
+    w.chair(5.2 + j(), -1.9 + j(), 0.1 + j())
+    w.chair(6.4 + j(), -1.5 + j(), 0.5 + j())
+    w.chair(5.9 + j(), -3.1 + j(), 0.0 + j())
+    w.box(0.8 + j(), 3.6, 1.0, 0.45)                                 # cabinet
+    w.chair(1.0 + j(), 2.4 + j(), 0.4 + j())
+    w.box(6.78, 1.2 + j(), 0.4, 1.8)                                 # bookshelf, east wall
+    w.box(3.6 + j(), 3.4 + j(), 0.5, 0.4, 0.3)                       # boxes on the floor
+    w.circle(1.2 + j(), -2.8 + j(), 0.15)                            # bin
+    w.circle(6.5 + j(), 3.4 + j(), 0.2)                              # plant pot
+    w.circle(0.3 + j(), -3.5 + j(), 0.04)                            # coat stand
+    _scatter(w, rng, (-0.6, -3.9, 0.6, -1.5), 2)                     # beside the scanner
+    _scatter(w, rng, (-0.6, 1.5, 0.6, 3.2), 2)
+    duration, start = 30.0, 0.5
+    end = start + duration + 1.0
+    walker = _walk(0.0, (2.0, -3.0),
+                   0.8,
+                   (2.0, 2.8, 1.0),            # path 1: across the scanner's view, left
+                   0.5,
+                   (4.6, -2.4, 0.9),           # path 2: diagonal back, right
+                   0.5,
+                   (5.2, 4.8, 1.2),            # path 3: through the door, out of the room
+                   (3.4, 5.1, 1.0),            # outside, out of sight
+                   0.8,
+                   (5.3, 4.9, 1.0),
+                   (2.6, -3.0, 1.2))           # path 4: back in, across the room
+    walker.wait_until(end)
+    return Scenario(
+        name='exp1_stationary_single_walker', seed=seed,
+        description=_doc(exp1_stationary_single_walker),
+        world=w, platform=_stationary(end).build(), agents=[_person(rng, 1, walker)],
+        duration=duration, scan_start=start,
+        lidar=LidarConfig(scan_rate_hz=143.0 / 30.0))
+
+
+# ------------------------------------------------------------------------------- office
+def _office(rng: np.random.Generator) -> World:
+    """An open-plan office 16 m x 8 m: desk rows along both long walls, a central aisle."""
+    w = World()
+    w.room(-2.0, -4.0, 14.0, 4.0, doors=[('west', 2.5, 0.9), ('south', 13.0, 0.9),
+                                         ('north', -1.0, 0.9)])
+    j = lambda s=0.05: _jitter(rng, s)  # noqa: E731
+    for x in (0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0):
+        for side in (-1.0, 1.0):
+            if rng.random() < 0.85:
+                w.box(x + j(), side * 3.3, 1.4, 0.7)                      # desk with panels
+            if rng.random() < 0.7:
+                w.chair(x + j(0.3), side * (2.45 + j(0.15)), float(rng.uniform(0, math.pi)))
+    w.circle(6.0, 1.8, 0.25)                                             # pillars
+    w.circle(6.0, -1.8, 0.25)
+    w.table(12.8 + j(), 0.0 + j(), 1.2, 0.9)                             # printer table
+    w.box(-1.6, 0.0 + j(), 0.5, 1.6)                                     # cabinets, west wall
+    _scatter(w, rng, (-1.5, -2.2, 13.5, -1.5), 4)
+    _scatter(w, rng, (-1.5, 1.5, 13.5, 2.2), 4)
+    return w
+
+
+def exp2_translating_static(seed: int = 2) -> Scenario:
+    """The platform translates along an office aisle (0.4 m/s, a 180 deg turn at the far
+    end) for 55 s; nothing moves."""
+    rng = _scene_rng(seed)
+    world = _office(rng)
+    duration, start = 55.0, 0.5
+    path = (PathBuilder(0.0, 0.0, 0.0, 0.0).wait(start + 0.5)
+            .go(10.0, 0.0, 0.4)
+            .turn_by(math.pi, 45 * DEG)
+            .go(0.0, 0.0, 0.4))
+    path.wait_until(start + duration + 1.5)
+    return Scenario(name='exp2_translating_static', seed=seed,
+                    description=_doc(exp2_translating_static),
+                    world=world, platform=path.build(), duration=duration, scan_start=start,
+                    odometry=OdometryConfig(rate_hz=LONG_RUN_ODOMETRY_HZ))
+
+
+def exp3_rotating_static(seed: int = 3) -> Scenario:
+    """The platform rotates in place (25 deg/s, 500 deg) in the office for 20 s; nothing
+    moves."""
+    rng = _scene_rng(seed)
+    world = _office(rng)
+    duration, start = 20.0, 0.5
+    path = (PathBuilder(0.0, 4.0, 0.0, 0.0).wait(start + 0.3)
+            .turn_by(500 * DEG, 25 * DEG))
+    path.wait_until(start + duration + 1.5)
+    return Scenario(name='exp3_rotating_static', seed=seed,
+                    description=_doc(exp3_rotating_static),
+                    world=world, platform=path.build(), duration=duration, scan_start=start)
+
+
+# ------------------------------------------------------------------------------ corridor
+def exp4_corridor_passers(seed: int = 4) -> Scenario:
+    """The platform stands at the end of a corridor; 14 people pass (0.8-1.5 m/s, two pairs
+    side by side), turning into a cross corridor and office doors. 55 s."""
+    rng = _scene_rng(seed)
+    w = World()
+    half = 1.25
+    # Main corridor along x, closed behind the platform; a cross corridor at x 3.5..5.5;
+    # office doors at x = 7.5 (north) and 10.5 (south).
+    w.polyline([(-1.0, -half), (-1.0, half)])
+    w.wall(-1.0, half, 3.5, half)
+    w.wall(5.5, half, 7.05, half)
+    w.wall(7.95, half, 25.0, half)
+    w.wall(-1.0, -half, 3.5, -half)
+    w.wall(5.5, -half, 10.05, -half)
+    w.wall(10.95, -half, 25.0, -half)
+    w.wall(3.5, half, 3.5, 9.0)
+    w.wall(5.5, half, 5.5, 9.0)
+    w.wall(3.5, -half, 3.5, -9.0)
+    w.wall(5.5, -half, 5.5, -9.0)
+    w.room(6.0, half, 10.0, 5.0, doors=[('south', 7.5, 0.9)])     # north office
+    w.room(9.0, -5.0, 13.0, -half, doors=[('north', 10.5, 0.9)])   # south office
+    j = lambda s=0.05: _jitter(rng, s)  # noqa: E731
+    w.box(1.5 + j(), half - 0.25, 0.8, 0.4)                     # notice-board cabinet
+    w.circle(-0.5 + j(), -half + 0.25, 0.15)                    # bin beside the platform
+    w.box(8.0 + j(), 3.5 + j(), 1.4, 0.7)                       # office desks
+    w.box(11.0 + j(), -3.5 + j(), 1.4, 0.7)
+    w.chair(12.0 + j(), -1.9 + j(), 0.3)
+    w.circle(14.0, half - 0.2, 0.12)                            # fire extinguisher
+    # Lanes keep people from walking through each other: in the corridor, towards the
+    # platform at y = 0.5 (pairs 0.25 / 0.85), away at y = -0.5; in the cross corridor,
+    # southwards at x = 4.1 (pairs 3.85 / 4.45), northwards at x = 4.9.
+    N, S = 6.5, -6.5            # out of sight in the cross corridor
+    far = 11.0                  # beyond the 8 m range
+    people = [
+        (1.0, (far, 0.5), [(4.9, 0.5, 1.0), (4.9, N, 1.0)]),
+        (4.0, (4.9, S), [(4.9, -0.5, 1.2), (far + 1, -0.5, 1.2)]),
+        (8.0, (far, 0.85), [(3.85, 0.85, 1.1), (3.85, S, 1.1)]),        # side by side
+        (8.0, (far, 0.25), [(4.45, 0.25, 1.1), (4.45, S, 1.1)]),
+        (14.5, (4.1, N), [(4.1, S, 1.5)]),                              # fast, straight across
+        (15.0, (7.5, 2.4), [(7.5, 0.5, 0.8), (2.0, 0.5, 0.8), 2.0, (4.1, 0.0, 0.8),
+                            (4.1, S, 0.8)]),                            # comes up close
+        (20.0, (4.9, S), [(4.9, -0.5, 1.4), (far + 1, -0.5, 1.4)]),
+        (25.0, (3.85, N), [(3.85, S, 1.0)]),                            # side by side across
+        (25.0, (4.45, N), [(4.45, S, 1.0)]),
+        (29.0, (far, 0.5), [(2.5, 0.5, 1.3), 0.6, (4.9, 0.9, 1.3), (4.9, N, 1.3)]),
+        (33.0, (10.5, -2.4), [(10.5, -0.5, 0.9), (4.9, -0.5, 0.9), (4.9, N, 0.9)]),
+        (39.5, (far, 0.5), [(4.1, 0.5, 1.5), (4.1, S, 1.5)]),           # fast
+        (42.0, (4.1, N), [(4.1, -0.5, 1.2), (far + 1, -0.5, 1.2)]),
+        (43.0, (far, 0.5), [(4.9, 0.5, 1.0), (4.9, N, 1.0)]),           # meets the last
+    ]
+    agents = [_person(rng, i + 1, _walk(t0, start, *moves))
+              for i, (t0, start, moves) in enumerate(people)]
+    duration, start = 55.0, 0.5
+    return Scenario(name='exp4_corridor_passers', seed=seed,
+                    description=_doc(exp4_corridor_passers),
+                    world=w, platform=_stationary(start + duration + 1.5).build(),
+                    agents=agents, duration=duration, scan_start=start,
+                    odometry=OdometryConfig(rate_hz=LONG_RUN_ODOMETRY_HZ))
+
+
+# -------------------------------------------------------------------------------- fig8
+def fig8_robot_target(seed: int = 8) -> Scenario:
+    """Another robot (a 0.55 m x 0.45 m box) drives a path with turns in front of a
+    stationary scanner in a lab, turning in place at the corners. 30 s."""
+    rng = _scene_rng(seed)
+    w = World()
+    w.room(-1.0, -4.0, 9.0, 4.0, doors=[('east', 2.0, 1.0)])
+    j = lambda s=0.05: _jitter(rng, s)  # noqa: E731
+    w.box(2.0 + j(), 3.6, 2.0, 0.7)          # benches
+    w.box(5.5 + j(), 3.6, 2.0, 0.7)
+    w.box(4.0 + j(), -3.6, 3.0, 0.7)
+    w.chair(2.5 + j(), 2.8 + j(), 0.2)
+    w.chair(5.0 + j(), -2.8 + j(), 1.0)
+    w.table(8.2 + j(), -2.5 + j(), 1.0, 1.6)
+    w.circle(7.0 + j(), 3.0 + j(), 0.2)
+    _scatter(w, rng, (-0.8, -3.8, 0.5, -2.0), 2)
+    _scatter(w, rng, (-0.8, 2.0, 0.5, 3.8), 2)
+    duration, start = 30.0, 0.5
+    turn = 60 * DEG
+    path = (PathBuilder(0.0, 1.5, -2.0, math.pi / 2).wait(1.5)
+            .drive(1.5, 1.8, 0.5, turn)
+            .drive(4.5, 1.8, 0.5, turn)
+            .drive(5.5, -1.5, 0.45, turn)
+            .drive(3.0, -0.8, 0.5, turn))
+    path.wait_until(start + duration + 1.5)
+    robot = Robot(1, path.build(), length=0.55, width=0.45)
+    return Scenario(name='fig8_robot_target', seed=seed,
+                    description=_doc(fig8_robot_target),
+                    world=w, platform=_stationary(start + duration + 1.5).build(),
+                    agents=[robot], duration=duration, scan_start=start)
+
+
+# --------------------------------------------------------------------------- crossing
+def crossing_walkers(seed: int = 5) -> Scenario:
+    """Harder: the platform drives slowly through an atrium while six people cross in front
+    of it, pass behind one another (occlusion) and walk towards it. 35 s."""
+    rng = _scene_rng(seed)
+    w = World()
+    w.room(-4.0, -10.0, 16.0, 10.0)                              # an atrium, mostly open
+    j = lambda s=0.05: _jitter(rng, s)  # noqa: E731
+    for x, y in ((2.0, -3.5), (2.0, 3.5), (11.5, -3.5), (11.5, 3.5), (4.0, -7.0), (4.0, 7.0),
+                 (12.5, 0.0)):
+        w.circle(x + j(), y + j(), 0.3)                           # pillars
+    w.box(0.25, -6.5 + j(), 6.5, 0.6)                            # reception counter
+    w.box(0.5, 6.5 + j(), 5.0, 0.6)                              # display cases
+    w.box(-2.5, 0.0 + j(), 0.6, 1.8)                             # benches
+    w.box(4.0 + j(), 6.0, 1.8, 0.5)
+    w.table(13.5 + j(), -6.0 + j(), 1.2, 0.8)
+    w.circle(8.3 + j(), -5.2 + j(), 0.35)                        # planter
+    w.box(-1.0 + j(), -3.0 + j(), 1.2, 0.8, 0.3)                 # information kiosk
+    _scatter(w, rng, (-3.5, -5.8, -0.5, -4.5), 3)
+    _scatter(w, rng, (12.5, 4.0, 15.0, 6.0), 3)
+    duration, start = 35.0, 0.5
+    platform = (PathBuilder(0.0, 0.0, 0.0, 0.0).wait(1.0)
+                .go(2.4, 0.0, 0.3)
+                .turn_by(25 * DEG, 20 * DEG)
+                .go(2.4 + 2.5 * math.cos(25 * DEG), 2.5 * math.sin(25 * DEG), 0.3)
+                .turn_by(-60 * DEG, 20 * DEG)
+                .wait(2.0))
+    platform.wait_until(start + duration + 1.5)
+    # Everyone starts and ends more than 8 m from the platform (out of range).
+    people = [
+        (0.5, (6.0, -8.5), [(9.0, 8.5, 1.0)]),                      # X crossing, in front
+        (1.99, (10.91, -6.24), [(5.6, 9.6, 1.1)]),                  # ... crossing its path
+        (3.0, (13.0, 2.5), [(5.5, 2.0, 0.9), (5.5, -9.0, 0.9)]),    # towards the platform
+        (3.6, (6.8, 9.5), [(7.2, -9.5, 0.7)]),                      # in front of ...
+        (9.41, (9.7, 8.5), [(9.45, -8.5, 1.1)]),                    # ... this one, for ~3 s
+        (19.0, (13.5, -3.0), [(7.0, -1.0, 1.2), 1.5, (8.0, 9.5, 1.2)]),
+    ]
+    agents = [_person(rng, i + 1, _walk(t0, s, *m)) for i, (t0, s, m) in enumerate(people)]
+    return Scenario(name='crossing_walkers', seed=seed,
+                    description=_doc(crossing_walkers),
+                    world=w, platform=platform.build(), agents=agents, duration=duration,
+                    scan_start=start)
+
+
+@dataclass(frozen=True)
+class ScenarioInfo:
+    build: Callable[[int], Scenario]
+    default_seed: int
+    summary: str
+
+
+SCENARIOS: dict[str, ScenarioInfo] = {
+    f.__name__: ScenarioInfo(f, f.__defaults__[0], _doc(f))
+    for f in (exp1_stationary_single_walker, exp2_translating_static, exp3_rotating_static,
+              exp4_corridor_passers, fig8_robot_target, crossing_walkers)
+}
+
+
+def build(name: str, seed: int | None = None) -> Scenario:
+    """The scenario ``name`` with ``seed`` (its default seed when None)."""
+    info = SCENARIOS[name]
+    return info.build(info.default_seed if seed is None else int(seed))
+

@@ -1,0 +1,238 @@
+"""``laser-tracker bench pipeline``: speed and memory of the whole pipeline.
+
+Scans and odometry of bundled recordings (361-beam SICK scans) are loaded into memory first;
+then the pipeline (ego-motion included) runs over them, the recording repeated with
+continuing stamps until ``--scans`` scans have been processed, single-threaded. Printed:
+scans per second, milliseconds per stage (ego-motion, grid, difference, blobs, tracking),
+and peak traced memory (tracemalloc) for a short run and a long one (``--long-scans``,
+default a simulated hour at 5 Hz = 18,000 scans) with checkpoints, to show it stays flat.
+Without bundled recordings the scans come from the simulator (``laser_tracker.sim``), else
+from a synthetic room with a walker.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
+from laser_tracker.core.scan import Scan
+
+DEFAULT_BAGS = ('exp1_stationary_single_walker', 'exp2_translating_static',
+                'crossing_walkers')
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--bag', action='append', metavar='BAG',
+                        help='recording(s) to use (path or bundled name; default: '
+                        + ', '.join(DEFAULT_BAGS) + ')')
+    parser.add_argument('--config', metavar='YAML', help='pipeline configuration')
+    parser.add_argument('--scans', type=int, default=3000,
+                        help='scans timed per recording (default 3000)')
+    parser.add_argument('--short-scans', type=int, default=500,
+                        help='scans of the short memory run (default 500)')
+    parser.add_argument('--long-scans', type=int, default=18000,
+                        help='scans of the long memory run (default 18000 = 1 h at 5 Hz; '
+                        '0 = skip)')
+
+
+class Events:
+    """A recording in memory: receive-ordered ('odom', stamp, pose) / ('scan', Scan)."""
+
+    def __init__(self, name: str, events: list, duration: float):
+        self.name, self.events, self.duration = name, events, duration
+        self.n_scans = sum(1 for e in events if e[0] == 'scan')
+
+    def cycle(self, n_scans: int):
+        """The events repeated with stamps shifted by the recording's length each time."""
+        done, k = 0, 0
+        while done < n_scans:
+            shift = k * self.duration
+            for e in self.events:
+                if e[0] == 'odom':
+                    yield ('odom', e[1] + shift, e[2])
+                else:
+                    s = e[1]
+                    yield ('scan', Scan(stamp=s.stamp + shift, ranges=s.ranges,
+                                        angle_min=s.angle_min,
+                                        angle_increment=s.angle_increment,
+                                        range_min=s.range_min, range_max=s.range_max,
+                                        frame_id=s.frame_id))
+                    done += 1
+                    if done >= n_scans:
+                        return
+            k += 1
+
+
+def load_bag(name: str) -> Events:
+    from laser_tracker.conversions import odometry_from_msg, scan_from_msg
+    from laser_tracker.io.bag import iter_messages, topics
+    from laser_tracker.tools.demo import resolve_bag
+
+    path = resolve_bag(name)
+    info = topics(path)
+    wanted = [t for t in ('/scan', '/odom') if t in info]
+    events = []
+    for topic, _, msg in iter_messages(path, wanted):
+        if topic == '/scan':
+            events.append(('scan', scan_from_msg(msg)))
+        else:
+            o = odometry_from_msg(msg)
+            events.append(('odom', o.stamp, (o.x, o.y, o.theta)))
+    return _finish(Path(path).name, events)
+
+
+def _finish(name: str, events: list) -> Events:
+    stamps = [e[1].stamp for e in events if e[0] == 'scan']
+    period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.2
+    duration = (stamps[-1] - stamps[0]) + period if stamps else 1.0
+    odo = [e[1] for e in events if e[0] == 'odom']
+    if odo:
+        duration = max(duration, odo[-1] - min(odo[0], stamps[0]) + period)
+    return Events(name, events, duration)
+
+
+def load_sim(name: str) -> Events:
+    from laser_tracker.sim import scenarios
+    from laser_tracker.sim.recorder import record
+
+    rec = record(scenarios.build(name))
+    events = [(t, 1, ('scan', s)) for s, t in zip(rec.scans, rec.scan_receive_times)]
+    o = rec.odometry
+    recv = getattr(o, 'receive_times', o.stamps)
+    events += [(t, 0, ('odom', float(s), tuple(p))) for s, t, p in zip(o.stamps, recv, o.poses)]
+    events.sort(key=lambda e: (e[0], e[1]))
+    return _finish(f'{name} (simulated)', [e[2] for e in events])
+
+
+def synthetic(n: int = 200) -> Events:
+    """A 10 m x 8 m room seen by a stationary 361-beam scanner, a 'leg' crossing it."""
+    angles = np.radians(np.linspace(-90, 90, 361))
+    c, s = np.cos(angles), np.sin(angles)
+    events = []
+    for k in range(n):
+        t = 0.2 * k
+        with np.errstate(divide='ignore'):
+            r = np.minimum(np.where(c > 1e-9, 6.0 / c, np.inf),
+                           np.where(np.abs(s) > 1e-9, 4.0 / np.abs(s), np.inf))
+        px, py = 3.0, -3.0 + (0.8 * t) % 6.0
+        b = px * c + py * s
+        disc = b * b - (px * px + py * py - 0.06 ** 2)
+        hit = (disc > 0) & (b > 0)
+        r = np.where(hit, np.minimum(r, b - np.sqrt(np.maximum(disc, 0))), r)
+        r = np.minimum(r, 7.99) + np.random.default_rng(k).normal(0, 0.01, r.size)
+        events.append(('odom', t, (0.0, 0.0, 0.0)))
+        events.append(('scan', Scan(stamp=t, ranges=r, angle_min=angles[0],
+                                    angle_increment=angles[1] - angles[0], range_min=0.0,
+                                    range_max=8.0)))
+    return _finish('synthetic room', events)
+
+
+def sources(names) -> list[Events]:
+    out = []
+    for name in names:
+        try:
+            out.append(load_bag(name))
+            continue
+        except Exception:  # noqa: BLE001 - fall back to the simulator
+            pass
+        try:
+            out.append(load_sim(Path(name).name))
+            continue
+        except Exception:  # noqa: BLE001 - fall back to synthetic scans
+            pass
+    return out or [synthetic()]
+
+
+def timed_run(events: Events, config: PipelineConfig, n_scans: int) -> dict:
+    pipeline = Pipeline(config, profile=True)
+    # Warm-up (ray tables, imports, caches) on the first scans, not timed.
+    for e in events.cycle(min(20, events.n_scans)):
+        if e[0] == 'odom':
+            pipeline.add_odometry(e[1], e[2])
+        else:
+            pipeline.step(e[1])
+    pipeline = Pipeline(config, profile=True)
+    stream = list(events.cycle(n_scans))
+    gc.collect()
+    t0 = time.perf_counter()
+    cpu0 = time.process_time()
+    for e in stream:
+        if e[0] == 'odom':
+            pipeline.add_odometry(e[1], e[2])
+        else:
+            pipeline.step(e[1])
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
+    return {'scans': n_scans, 'wall': wall, 'cpu': cpu,
+            'stages': {k: 1e3 * v / n_scans for k, v in pipeline.times.items()},
+            'sources': dict(pipeline.sources), 'created': pipeline.tracker.stats['created']}
+
+
+def memory_run(events: Events, config: PipelineConfig, n_scans: int,
+               checkpoints: int = 6) -> list[tuple[int, float, float]]:
+    """(scans done, current MB, peak MB) at checkpoints, tracemalloc running throughout."""
+    marks = sorted({max(1, round(n_scans * (i + 1) / checkpoints)) for i in range(checkpoints)})
+    pipeline = Pipeline(config)
+    gc.collect()
+    tracemalloc.start()
+    out, done = [], 0
+    try:
+        for e in events.cycle(n_scans):
+            if e[0] == 'odom':
+                pipeline.add_odometry(e[1], e[2])
+                continue
+            pipeline.step(e[1])
+            done += 1
+            if marks and done == marks[0]:
+                marks.pop(0)
+                cur, peak = tracemalloc.get_traced_memory()
+                out.append((done, cur / 1e6, peak / 1e6))
+    finally:
+        tracemalloc.stop()
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    config = PipelineConfig.load(args.config) if args.config else PipelineConfig()
+    recordings = sources(args.bag or DEFAULT_BAGS)
+    print(f'pipeline benchmark: {", ".join(r.name for r in recordings)}; one core, '
+          f'grid {config.grid.cells} x {config.grid.cells} cells of '
+          f'{config.grid.resolution * 100:.0f} cm, Kalman mode {config.kalman.mode}')
+    header = f'{"recording":<34} {"beams":>5} {"scans/s":>8} ' + \
+        ' '.join(f'{s:>10}' for s in STAGES) + f' {"total ms":>9}'
+    print('\nspeed (ms per scan by stage; ego-motion source counts below)')
+    print(header)
+    for rec in recordings:
+        beams = next(e[1].n_beams for e in rec.events if e[0] == 'scan')
+        r = timed_run(rec, config, args.scans)
+        per = r['scans'] / r['wall']
+        stages = ' '.join(f'{r["stages"][s]:>10.3f}' for s in STAGES)
+        print(f'{rec.name[:34]:<34} {beams:>5} {per:>8.0f} {stages} '
+              f'{1e3 * r["wall"] / r["scans"]:>9.3f}')
+        print(f'{"":<34} {"":>5} {"":>8} ego-motion sources {r["sources"]}, cpu/wall '
+              f'{r["cpu"] / r["wall"]:.2f}, hypotheses created {r["created"]}')
+    rec = recordings[0]
+    print(f'\nmemory (tracemalloc, pipeline state only) on {rec.name}, stamps continuing '
+          f'over repeats')
+    for label, n in (('short', args.short_scans), ('long', args.long_scans)):
+        if n <= 0:
+            continue
+        t0 = time.perf_counter()
+        marks = memory_run(rec, config, n)
+        wall = time.perf_counter() - t0
+        hours = n / 5.0 / 3600.0
+        print(f'  {label} run: {n} scans ({hours:.2f} h at 5 Hz), {wall:.1f} s with tracing')
+        for done, cur, peak in marks:
+            print(f'    after {done:>6} scans: current {cur:6.2f} MB, peak {peak:6.2f} MB')
+    try:
+        import resource
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        print(f'  process max RSS {rss:.0f} MB (includes the recordings loaded in memory)')
+    except (ImportError, OSError):  # pragma: no cover - not on every platform
+        pass
+    return 0

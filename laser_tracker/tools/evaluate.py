@@ -1,0 +1,462 @@
+"""``laser-tracker evaluate DIR BAG``: score a replay folder against the bag's ground truth.
+
+DIR is a ``laser-tracker replay`` output (``ego_motion.csv``, ``tracks.csv``, optionally
+``summary.json``). With ground truth (a simulated recording) it prints CLEAR MOT (motmetrics),
+the paper's table rows and the position error distribution, and writes them as JSON
+(``DIR/evaluation.json`` unless ``--json``) with two figures in DIR. A recording without
+labels is refused with a clear error; ``--no-ground-truth`` reports confirmed tracks and
+estimated false detections per minute instead. Definitions: ``laser_tracker.tools.scoring``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import logging
+import math
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from laser_tracker.errors import InputFileError, LaserTrackerError
+from laser_tracker.io.atomic import atomic_path
+from laser_tracker.tools.scoring import (EvaluationConfig, Scores, TrackTable, TruthTable,
+                                         match_stamps, median_period, score, score_unlabelled,
+                                         tracks_to_map)
+
+log = logging.getLogger(__name__)
+
+EGO_COLUMNS = ('stamp', 'x', 'y', 'theta')
+TRACK_COLUMNS = ('stamp', 'track_id', 'x', 'y', 'vx', 'vy', 'weight', 'confirmed')
+TRUE_WORDS = {'1', 'true', 'True', 'TRUE', '1.0'}
+FALSE_WORDS = {'0', 'false', 'False', 'FALSE', '0.0'}
+ERROR_FIGURE = 'evaluation_position_error.png'
+TRACKS_FIGURE = 'evaluation_tracks.png'
+REPORT_FIGURE = 'report_tracks.png'
+
+
+# ------------------------------------------------------------------------------ reading
+
+
+@dataclass
+class Replay:
+    folder: Path
+    ego_stamps: np.ndarray
+    ego_poses: np.ndarray
+    tracks: TrackTable
+    summary: dict
+
+
+def _read_csv(path: Path, columns: tuple[str, ...], convert) -> list[tuple]:
+    """Rows of a CSV file with the given header; a malformed row is skipped with a warning."""
+    if not path.is_file():
+        raise InputFileError(path, 'not found (is the folder a `laser-tracker replay` output?)')
+    rows, bad = [], 0
+    try:
+        with path.open(newline='') as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise InputFileError(path, 'empty file (no header)')
+            header = [h.strip() for h in header]
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise InputFileError(path, f'header lacks {", ".join(missing)} '
+                                     f'(expected {",".join(columns)})', 'line 1')
+            index = [header.index(c) for c in columns]
+            for line_no, row in enumerate(reader, start=2):
+                if not row:
+                    continue
+                try:
+                    rows.append(convert([row[i].strip() for i in index]))
+                except (ValueError, IndexError) as exc:
+                    bad += 1
+                    if bad <= 3:
+                        log.warning('%s: line %d skipped: %s', path, line_no, exc or 'malformed')
+    except UnicodeDecodeError as exc:
+        raise InputFileError(path, f'not a text CSV file: {exc}') from None
+    if bad:
+        log.warning('%s: %d malformed row(s) skipped', path, bad)
+    return rows
+
+
+def _flag(text: str) -> bool:
+    if text in TRUE_WORDS:
+        return True
+    if text in FALSE_WORDS:
+        return False
+    raise ValueError(f'confirmed must be 0/1 or true/false, got {text!r}')
+
+
+def _finite(values):
+    out = [float(v) for v in values]
+    if not all(math.isfinite(v) for v in out):
+        raise ValueError('non-finite value')
+    return out
+
+
+def _ego_row(r):
+    return tuple(_finite(r))
+
+
+def _track_row(r):
+    stamp, x, y, vx, vy = _finite([r[0], r[2], r[3], r[4], r[5]])
+    weight = float(r[6])
+    return stamp, int(float(r[1])), x, y, vx, vy, weight, _flag(r[7])
+
+
+def read_replay(folder: str | Path) -> Replay:
+    """The files of a replay folder; InputFileError names whatever is missing or unreadable."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputFileError(folder, 'no such replay folder (run `laser-tracker replay BAG '
+                             '--out DIR` first)')
+    ego = np.array(_read_csv(folder / 'ego_motion.csv', EGO_COLUMNS, _ego_row),
+                   float).reshape(-1, 4)
+    if ego.shape[0] == 0:
+        raise InputFileError(folder / 'ego_motion.csv', 'no scans in the replay')
+    tracks = TrackTable.from_rows(_read_csv(folder / 'tracks.csv', TRACK_COLUMNS, _track_row))
+    summary = {}
+    summary_path = folder / 'summary.json'
+    if summary_path.is_file():
+        try:
+            summary = json.loads(summary_path.read_text())
+        except (OSError, ValueError) as exc:
+            log.warning('%s: unreadable, ignored: %s', summary_path, exc)
+        if not isinstance(summary, dict):
+            summary = {}
+    return Replay(folder, ego[:, 0].copy(), ego[:, 1:].copy(), tracks, summary)
+
+
+def hypotheses_made(replay: Replay) -> tuple[int, str]:
+    """summary.json ``hypotheses_created``, else the distinct track ids of tracks.csv."""
+    value = replay.summary.get('hypotheses_created')
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0:
+        return int(value), 'summary.json'
+    return int(np.unique(replay.tracks.track_id).size), 'tracks.csv (distinct ids)'
+
+
+def load_truth(bag: str | Path) -> tuple[TruthTable, np.ndarray, np.ndarray]:
+    """Ground truth and platform truth of a recording; a clear error if it has none."""
+    from laser_tracker.io.bag import read_ground_truth, read_platform_truth
+
+    try:
+        frames = read_ground_truth(bag)
+    except InputFileError as exc:
+        if 'no ground truth' in exc.reason:
+            raise InputFileError(bag, 'has no ground truth (no /ground_truth topic): a real '
+                                 'recording? use `laser-tracker evaluate DIR '
+                                 '--no-ground-truth` for the unlabelled report') from None
+        raise
+    if not frames:
+        raise InputFileError(bag, 'the /ground_truth topic holds no messages')
+    frame_ids = {f.frame_id for f in frames if f.objects}
+    if frame_ids - {'map'}:
+        log.warning('%s: ground truth in frame(s) %s, taken as the platform truth frame',
+                    bag, sorted(frame_ids))
+    platform = read_platform_truth(bag)
+    if len(platform) == 0:
+        raise InputFileError(bag, 'the platform truth topic holds no messages')
+    order = np.argsort(platform.stamps, kind='stable')
+    return TruthTable.from_frames(frames), platform.stamps[order], platform.poses[order]
+
+
+# ------------------------------------------------------------------------------ scoring
+
+
+@dataclass
+class Evaluation:
+    """The result of :func:`evaluate_replay`: JSON dict plus what the figures need."""
+
+    result: dict
+    scores: Scores | None
+    replay: Replay
+    truth: TruthTable | None = None
+    tracks_map: TrackTable | None = None
+    platform_poses: np.ndarray | None = None
+
+
+def evaluate_replay(folder: str | Path, bag: str | Path,
+                    config: EvaluationConfig = EvaluationConfig()) -> Evaluation:
+    """Score a replay folder against a bag's ground truth (a path or a bundled name)."""
+    from laser_tracker.tools.demo import resolve_bag
+
+    replay = read_replay(folder)
+    bag = resolve_bag(bag)
+    truth, true_stamps, true_poses = load_truth(bag)
+    tol = config.stamp_tolerance * median_period(replay.ego_stamps)
+    tracks = tracks_to_map(replay.tracks, replay.ego_stamps, replay.ego_poses,
+                           true_stamps, true_poses, tol)
+    replayed = match_stamps(truth.stamps, np.sort(replay.ego_stamps), tol) >= 0
+    skipped = int((~replayed).sum())
+    if skipped:
+        log.warning('%d of %d ground-truth frame(s) have no replayed scan and are not scored',
+                    skipped, truth.stamps.size)
+        truth = truth.keep_frames(replayed)
+    scores = score(truth, tracks, config)
+    scores.unlabelled = {k: v for k, v in score_unlabelled(
+        replay.tracks, replay.ego_stamps, config).items() if k != 'tracks'}
+    made, source = hypotheses_made(replay)
+    result = {'mode': 'ground_truth', 'replay': str(folder), 'bag': str(bag),
+              'config': asdict(config), 'ground_truth_frames_not_replayed': skipped,
+              'ground_truth_has_visibility': truth.has_visibility,
+              'hypotheses_made': made, 'hypotheses_source': source}
+    result.update(scores.as_dict())
+    return Evaluation(result, scores, replay, truth, tracks, true_poses)
+
+
+def report_unlabelled(folder: str | Path,
+                      config: EvaluationConfig = EvaluationConfig()) -> Evaluation:
+    """Confirmed tracks and estimated false detections of a replay without ground truth."""
+    replay = read_replay(folder)
+    result = {'mode': 'unlabelled', 'replay': str(folder), 'config': asdict(config)}
+    result.update(score_unlabelled(replay.tracks, replay.ego_stamps, config))
+    made, source = hypotheses_made(replay)
+    result.update(hypotheses_made=made, hypotheses_source=source)
+    return Evaluation(result, None, replay)
+
+
+# ------------------------------------------------------------------------------ output
+
+
+def _num(v, fmt='{:.3f}'):
+    return '-' if v is None else fmt.format(v)
+
+
+def format_table(result: dict) -> str:
+    """The human-readable table of an ``evaluate_replay`` or ``report_unlabelled`` result."""
+    if result['mode'] == 'unlabelled':
+        return format_unlabelled(result)
+    cfg = result['config']
+    which = 'confirmed tracks' if cfg['confirmed_only'] else 'all hypotheses'
+    lines = [f'evaluation of {result["replay"]} against {result["bag"]}',
+             f'  {result["frames"]} frames, match threshold {cfg["threshold"]:.2f} m, '
+             f'{which} ({result["tracks_scored"]} scored)', '', 'paper rows']
+    lengths = result['false_detection_frames']
+    rows = [
+        ('constant-velocity paths taken / detected',
+         f'{result["paths_taken"]} / {result["paths_detected"]}'),
+        ('false detections', str(result['false_detections'])),
+        ('  length in frames (longest)',
+         (', '.join(map(str, lengths[:20])) + (' ...' if len(lengths) > 20 else '')
+          + f'  ({max(lengths)})') if lengths else '-'),
+        ('velocity hypotheses made', f'{result["hypotheses_made"]}  '
+                                     f'[{result["hypotheses_source"]}]'),
+        ('clearly incorrect hypotheses', str(result['incorrect_hypotheses'])),
+        ('passing objects / detected',
+         f'{result["objects_passing"]} / {result["objects_detected"]}'),
+    ]
+    lines += [f'  {k:<42} {v}' for k, v in rows]
+    det, pre = result['clear_mot']['detectable'], result['clear_mot']['present']
+    lines += ['', f'CLEAR MOT {"":<32} {"detectable":>11} {"present":>11}']
+    names = [('MOTA', 'mota', '{:.3f}'), ('MOTP (m)', 'motp', '{:.3f}'),
+             ('ID switches', 'num_switches', '{:d}'),
+             ('false positives', 'num_false_positives', '{:d}'),
+             ('misses', 'num_misses', '{:d}'), ('matches', 'num_matches', '{:d}'),
+             ('objects (ground-truth rows)', 'num_objects', '{:d}'),
+             ('precision', 'precision', '{:.3f}'), ('recall', 'recall', '{:.3f}')]
+    for label, key, fmt in names:
+        lines.append(f'  {label:<40} {_num(det[key], fmt):>11} {_num(pre[key], fmt):>11}')
+    e = result['position_error']
+    lines += ['', f'position error (Fig. 8), {e["count"]} matches']
+    if e['count']:
+        lines.append(f'  median {e["median"]:.3f} m, mean {e["mean"]:.3f} m, '
+                     f'95th percentile {e["p95"]:.3f} m, within 0.2 m {100 * e["within_0_2m"]:.0f} %')
+    u = result.get('unlabelled_estimate') or {}
+    if u:
+        lines += ['', f'unlabelled estimate (cross-check): {u["confirmed_tracks"]} confirmed '
+                  f'tracks, {u["estimated_false"]} moved < {u["min_displacement"]:.2f} m']
+    return '\n'.join(lines)
+
+
+def format_unlabelled(result: dict) -> str:
+    per = result['confirmed_per_minute']
+    fper = result['estimated_false_per_minute']
+    lines = [f'unlabelled report of {result["replay"]} (no ground truth)',
+             f'  {result["scans"]} scans over {result["duration_s"]:.1f} s',
+             f'  velocity hypotheses made          {result["hypotheses_made"]}  '
+             f'[{result["hypotheses_source"]}]',
+             f'  confirmed tracks                  {result["confirmed_tracks"]}'
+             f'  ({_num(per, "{:.1f}")} per minute)',
+             f'  estimated false detections        {result["estimated_false"]}'
+             f'  ({_num(fper, "{:.1f}")} per minute; moved < '
+             f'{result["min_displacement"]:.2f} m while confirmed)']
+    if result['confirmed_tracks']:
+        lines.append(f'  confirmed life in frames          median '
+                     f'{result["confirmed_frames_median"]:.0f}, max {result["confirmed_frames_max"]}')
+    return '\n'.join(lines)
+
+
+def write_json(result: dict, path: str | Path) -> Path:
+    path = Path(path)
+    with atomic_path(path, overwrite=True) as tmp:
+        tmp.write_text(json.dumps(result, indent=2, default=_json_default) + '\n')
+    return path
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f'{type(o).__name__} is not JSON serialisable')
+
+
+def _save(fig, path: Path) -> Path:
+    with atomic_path(path, overwrite=True) as tmp:
+        fig.savefig(tmp, dpi=110)
+    return path
+
+
+def error_figure(errors: np.ndarray, path: Path, threshold: float) -> Path:
+    """Fig. 8: histogram and CDF of the distance between matched tracks and their objects."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+    if errors.size:
+        ax1.hist(errors, bins=np.linspace(0, threshold, 31), color='tab:blue')
+        xs = np.sort(errors)
+        ax2.plot(xs, np.arange(1, xs.size + 1) / xs.size, color='tab:blue')
+        for ax in (ax1, ax2):
+            ax.axvline(float(np.median(errors)), color='k', ls='--', lw=1, label='median')
+            ax.axvline(0.2, color='tab:red', ls=':', lw=1, label='0.2 m (paper)')
+        ax2.legend(loc='lower right')
+    else:
+        ax1.text(0.5, 0.5, 'no matches', ha='center', transform=ax1.transAxes)
+    ax1.set(xlabel='distance track - object (m)', ylabel='matches',
+            title=f'position error ({errors.size} matches)')
+    ax2.set(xlabel='distance track - object (m)', ylabel='fraction', ylim=(0, 1.01),
+            xlim=(0, threshold), title='cumulative')
+    fig.tight_layout()
+    out = _save(fig, path)
+    plt.close(fig)
+    return out
+
+
+def tracks_figure(truth: TruthTable | None, tracks: TrackTable, false_ids: set[int],
+                  path: Path, title: str, platform: np.ndarray | None = None) -> Path:
+    """Object trajectories (grey) and scored tracks (colour; red for false ones)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 7))
+    if platform is not None and len(platform):
+        ax.plot(platform[:, 0], platform[:, 1], color='0.6', lw=1, ls='--', label='scanner')
+    if truth is not None:
+        for k, oid in enumerate(np.unique(truth.obj_id)):
+            m = truth.obj_id == oid
+            ax.plot(truth.x[m], truth.y[m], color='0.3', lw=2, alpha=0.5,
+                    label='ground truth' if k == 0 else None)
+    cmap = plt.get_cmap('tab10')
+    for k, tid in enumerate(np.unique(tracks.track_id)):
+        m = tracks.track_id == tid
+        bad = int(tid) in false_ids
+        ax.plot(tracks.x[m], tracks.y[m], '.', ms=4, color='tab:red' if bad else cmap(k % 10))
+        step = max(1, int(m.sum()) // 8)
+        ax.quiver(tracks.x[m][::step], tracks.y[m][::step], tracks.vx[m][::step],
+                  tracks.vy[m][::step], angles='xy', scale_units='xy', scale=1, width=0.003,
+                  color='tab:red' if bad else cmap(k % 10))
+    ax.plot([], [], 'r.', label='false detection')
+    ax.set(aspect='equal', xlabel='x (m)', ylabel='y (m)', title=title)
+    ax.legend(loc='best', fontsize=8)
+    fig.tight_layout()
+    out = _save(fig, path)
+    plt.close(fig)
+    return out
+
+
+def write_figures(ev: Evaluation, folder: str | Path) -> list[Path]:
+    """The figures of an evaluation, in ``folder``; a figure that fails is a warning only."""
+    folder, result, replay = Path(folder), ev.result, ev.replay
+    written = []
+    try:
+        if result['mode'] == 'unlabelled':
+            false_ids = {t['track'] for t in result['tracks']
+                         if t['displacement'] < result['min_displacement']}
+            conf = replay.tracks.select(replay.tracks.confirmed)
+            written.append(tracks_figure(
+                None, conf, false_ids, folder / REPORT_FIGURE,
+                f'confirmed tracks (odometry frame): {len(result["tracks"])}, '
+                f'{len(false_ids)} moved < {result["min_displacement"]:.2f} m',
+                platform=replay.ego_poses))
+        else:
+            written.append(error_figure(ev.scores.errors, folder / ERROR_FIGURE,
+                                        result['config']['threshold']))
+            tracks = ev.tracks_map
+            if result['config']['confirmed_only']:
+                tracks = tracks.select(tracks.confirmed)
+            written.append(tracks_figure(
+                ev.truth, tracks, {f['track'] for f in result['false_detection_list']},
+                folder / TRACKS_FIGURE, 'scored tracks (map frame) and ground truth',
+                platform=ev.platform_poses))
+    except Exception as exc:  # a figure is a by-product: never lose the scores for it
+        log.warning('figure not written: %s: %s', type(exc).__name__, exc)
+    return written
+
+
+# ------------------------------------------------------------------------------ command
+
+
+def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
+    from laser_tracker.config import from_dict
+
+    values = {'threshold': args.threshold, 'confirmed_only': args.confirmed_only,
+              'min_speed': args.min_speed, 'min_displacement': args.min_displacement}
+    return from_dict(EvaluationConfig, values)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    d = EvaluationConfig()
+    parser.add_argument('dir', metavar='DIR', help='a `laser-tracker replay` output folder')
+    parser.add_argument('bag', metavar='BAG', nargs='?',
+                        help='the replayed recording, with /ground_truth '
+                             '(not needed with --no-ground-truth)')
+    parser.add_argument('--threshold', type=float, default=d.threshold,
+                        help=f'match distance in metres (default {d.threshold})')
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument('--confirmed-only', dest='confirmed_only', action='store_true',
+                       default=True, help='score confirmed tracks only (default)')
+    group.add_argument('--all', dest='confirmed_only', action='store_false',
+                       help='score every hypothesis, confirmed or not')
+    parser.add_argument('--min-speed', type=float, default=d.min_speed,
+                        help=f'objects slower than this (m/s) are standing: not required to '
+                             f'be detected, and they end a path (default {d.min_speed})')
+    parser.add_argument('--no-ground-truth', action='store_true',
+                        help='unlabelled recording: confirmed tracks and estimated false '
+                             'detections per minute')
+    parser.add_argument('--min-displacement', type=float, default=d.min_displacement,
+                        help='--no-ground-truth: a confirmed track moving less than this (m) '
+                             f'counts as a false detection (default {d.min_displacement})')
+    parser.add_argument('--json', metavar='OUT', help='JSON output (default DIR/evaluation.json)')
+    parser.add_argument('--no-figures', action='store_true', help='write no figures')
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
+    config = config_from_args(args)
+    folder = Path(args.dir)
+    if args.no_ground_truth:
+        if args.bag:
+            log.warning('BAG %s ignored with --no-ground-truth', args.bag)
+        ev = report_unlabelled(folder, config)
+    else:
+        if not args.bag:
+            raise LaserTrackerError('BAG is required (the recording with /ground_truth), '
+                                    'or --no-ground-truth for an unlabelled report')
+        ev = evaluate_replay(folder, args.bag, config)
+    result = ev.result
+    figures = [] if args.no_figures else write_figures(ev, folder)
+    result['figures'] = [str(p) for p in figures]
+    out = write_json(result, args.json or folder / 'evaluation.json')
+    print(format_table(result))
+    print()
+    for p in figures:
+        print(f'figure: {p}')
+    print(f'json:   {out}')
+    sys.stdout.flush()
+    return 0

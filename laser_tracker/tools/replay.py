@@ -1,0 +1,285 @@
+"""``laser-tracker replay BAG``: ego-motion, detection and tracking over a whole recording.
+
+Runs :class:`laser_tracker.core.pipeline.Pipeline` on the scans and odometry of a rosbag2
+folder or a ROS 1 bag in receive order, as fast as the machine allows (progress bar on
+stderr), and writes into ``--out DIR``:
+
+* ``ego_motion.csv``: ``stamp,x,y,theta``, the scanner pose in the odometry frame per scan;
+* ``tracks.csv``: ``stamp,track_id,x,y,vx,vy,weight,confirmed``, one row per hypothesis per
+  scan, positions and velocities in the odometry frame (``confirmed`` is 0/1);
+* ``summary.json``: scans, scans skipped with their reasons, hypotheses created, confirmed
+  tracks, ego-motion source counts, resets, timing, the configuration used;
+* ``tracks.png`` (paper Fig. 10) and, with ``--figure-scan K``, ``scan_K.png`` (Fig. 5 / 7).
+
+A recording without the odometry topic runs on scan matching alone. Bad input never stops
+the replay: undecodable or malformed scans are skipped and counted; time going backwards
+resets the pipeline (logged, counted); a damaged recording ends the replay at the damage with
+the outputs written and the reason in the summary.
+
+``replay_bag`` is the API the ``evaluate`` and ``demo`` commands use.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import math
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from laser_tracker.config import ConfigError
+from laser_tracker.conversions import odometry_from_msg, scan_from_msg
+from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
+from laser_tracker.core.scan import ScanError
+from laser_tracker.errors import InputFileError
+from laser_tracker.io.atomic import atomic_path
+
+log = logging.getLogger(__name__)
+
+EGO_HEADER = 'stamp,x,y,theta\n'
+TRACKS_HEADER = 'stamp,track_id,x,y,vx,vy,weight,confirmed\n'
+TRACKS_FIGURE = 'tracks.png'
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bag', metavar='BAG', help='a rosbag2 folder or a ROS 1 .bag file')
+    parser.add_argument('--config', metavar='YAML',
+                        help='ROS parameter file (default: the package defaults, as in '
+                        'config/laser_tracker.yaml)')
+    parser.add_argument('--out', metavar='DIR', help='output folder (default out/<bag name>)')
+    parser.add_argument('--scan-topic', default='/scan', help='LaserScan topic (default /scan)')
+    parser.add_argument('--odom-topic', default='/odom',
+                        help='Odometry topic (default /odom; absent = scan matching alone)')
+    parser.add_argument('--figure-scan', type=int, metavar='K',
+                        help='also draw grid / previous grid / difference / velocities for '
+                        'scan K (0-based)')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
+    bag = Path(args.bag)
+    out = Path(args.out) if args.out else Path('out') / bag.name.removesuffix('.bag')
+    config = PipelineConfig.load(args.config) if args.config else None
+    summary = replay_bag(bag, config=config, out_dir=out, scan_topic=args.scan_topic,
+                         odom_topic=args.odom_topic, progress=not args.no_progress,
+                         figure_scan=args.figure_scan)
+    skipped = sum(summary['scans_skipped'].values())
+    print(f'{summary["scans"]} scans replayed ({skipped} skipped) in '
+          f'{summary["timing"]["wall_s"]:.2f} s = {summary["timing"]["scans_per_s"]:.0f} '
+          f'scans/s; {summary["hypotheses_created"]} hypotheses created, '
+          f'{summary["confirmed_tracks"]} confirmed tracks')
+    for reason, count in summary['scans_skipped'].items():
+        print(f'  skipped {count}: {reason}')
+    print(f'outputs in {out}: ' + ', '.join(summary['files']))
+    return 0
+
+
+def _fmt(v: float) -> str:
+    return f'{v:.6f}' if math.isfinite(v) else 'nan'
+
+
+def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | None = None,
+               scan_topic: str = '/scan', odom_topic: str = '/odom', progress: bool = True,
+               figure_scan: int | None = None,
+               on_confirmed: Callable[[float, int, float, float, float, float], None] | None
+               = None) -> dict:
+    """Replay a recording; return the summary dict (also written as ``summary.json``).
+
+    ``config`` may also be a path to a ROS parameter file. Without ``out_dir`` nothing is
+    written (the summary is still returned). ``on_confirmed(stamp, track_id, x, y, vx, vy)``
+    is called once per track, when it is first confirmed (odometry frame).
+    """
+    from laser_tracker.io.bag import iter_messages, topics
+
+    bag_path = Path(bag_path)
+    if isinstance(config, (str, Path)):
+        config = PipelineConfig.load(config)
+    config = config or PipelineConfig()
+    info = topics(bag_path)
+    if scan_topic not in info:
+        raise InputFileError(bag_path, f'no {scan_topic} topic; topics: '
+                             f'{", ".join(sorted(info)) or "none"}')
+    wanted = [scan_topic]
+    has_odometry = bool(odom_topic) and odom_topic in info and info[odom_topic][1] > 0
+    if has_odometry:
+        wanted.append(odom_topic)
+    else:
+        log.info('%s: no %s topic: ego-motion from scan matching alone', bag_path, odom_topic)
+    n_scans = int(info[scan_topic][1])
+
+    pipeline = Pipeline(config, profile=True)
+    skipped: Counter = Counter()
+    confirmed_ids: set[int] = set()
+    figure_rows: list[tuple] = []       # confirmed rows for Fig. 10
+    scanner: list[tuple] = []
+    files: list[str] = []
+    odometry_messages = 0
+    damage = None
+    scan_index = -1
+    scans_done = 0
+    wall0 = time.perf_counter()
+
+    with contextlib.ExitStack() as stack:
+        if out_dir is not None:
+            out_dir = Path(out_dir)
+            out_dir.mkdir(parents=True, exist_ok=True)
+            ego_f = stack.enter_context(atomic_path(out_dir / 'ego_motion.csv', True)).open('w')
+            trk_f = stack.enter_context(atomic_path(out_dir / 'tracks.csv', True)).open('w')
+            stack.callback(trk_f.close)
+            stack.callback(ego_f.close)
+            ego_f.write(EGO_HEADER)
+            trk_f.write(TRACKS_HEADER)
+        else:
+            ego_f = trk_f = None
+        bar = _progress(n_scans, progress, bag_path.name)
+        stack.callback(bar.close)
+        try:
+            for topic, _, msg in iter_messages(bag_path, wanted):
+                if topic != scan_topic:
+                    try:
+                        odo = odometry_from_msg(msg)
+                        pose = (odo.x, odo.y, odo.theta)
+                        if not all(math.isfinite(v) for v in (odo.stamp, *pose)):
+                            raise ValueError('non-finite odometry')
+                    except Exception as exc:   # noqa: BLE001 - any malformed message
+                        skipped_odo = f'odometry message skipped: {exc}'
+                        log.warning(skipped_odo)
+                        continue
+                    pipeline.add_odometry(odo.stamp, pose)
+                    odometry_messages += 1
+                    continue
+                scan_index += 1
+                bar.update(1)
+                try:
+                    scan = scan_from_msg(msg)
+                except (ScanError, ValueError, TypeError, AttributeError) as exc:
+                    reason = f'malformed scan: {exc}'
+                    log.warning('scan %d skipped: %s', scan_index, reason)
+                    skipped[_reason_key(reason)] += 1
+                    continue
+                want = figure_scan is not None and scan_index == figure_scan
+                result = pipeline.step(scan, want_grids=want)
+                if result.skipped:
+                    skipped[result.skipped] += 1
+                    continue
+                scans_done += 1
+                _write_scan(result, ego_f, trk_f)
+                h = result.hypotheses
+                scanner.append(tuple(result.pose))
+                conf = np.flatnonzero(h.confirmed)
+                for j in conf:
+                    figure_rows.append((result.stamp, int(h.track_id[j]), *h.position[j],
+                                        *h.velocity[j]))
+                for j in result.newly_confirmed:
+                    tid = int(h.track_id[j])
+                    if tid in confirmed_ids:
+                        continue
+                    confirmed_ids.add(tid)
+                    if on_confirmed is not None:
+                        on_confirmed(float(result.stamp), tid, float(h.position[j, 0]),
+                                     float(h.position[j, 1]), float(h.velocity[j, 0]),
+                                     float(h.velocity[j, 1]))
+                if want and out_dir is not None:
+                    from laser_tracker.tools.figures import scan_figure
+                    name = f'scan_{figure_scan}.png'
+                    scan_figure(result, config.grid.resolution, out_dir / name,
+                                f'{bag_path.name}: scan {figure_scan} at t = '
+                                f'{result.stamp:.3f} s')
+                    files.append(name)
+        except InputFileError as exc:
+            damage = str(exc)
+            log.error('replay stopped early: %s', damage)
+        wall = time.perf_counter() - wall0
+
+    if figure_scan is not None and not (0 <= figure_scan <= scan_index):
+        log.warning('--figure-scan %d: the recording has scans 0..%d', figure_scan, scan_index)
+    stats = pipeline.tracker.stats
+    summary = {
+        'bag': str(bag_path),
+        'scan_topic': scan_topic,
+        'odom_topic': odom_topic if has_odometry else None,
+        'scans': scans_done,
+        'scan_messages': scan_index + 1,
+        'scans_skipped': dict(skipped),
+        'odometry_messages': odometry_messages,
+        'pipeline_events': {k: v for k, v in pipeline.stats.items() if k != 'scans'},
+        'hypotheses_created': int(stats['created']),
+        'confirmed_tracks': len(confirmed_ids),
+        'tracker': {k: int(v) for k, v in stats.items()},
+        'ego_motion_sources': dict(pipeline.sources),
+        'timing': {
+            'wall_s': wall,
+            'scans_per_s': scans_done / wall if wall > 0 else None,
+            'ms_per_scan': {s: 1e3 * pipeline.times[s] / max(scans_done, 1) for s in STAGES},
+        },
+        'damaged': damage,
+        'config': config.to_ros_params(),
+    }
+    if out_dir is not None:
+        files[:0] = ['ego_motion.csv', 'tracks.csv']
+        from laser_tracker.tools.figures import tracks_figure
+        rows = np.array(figure_rows, float).reshape(-1, 6)
+        tracks_figure(rows, np.array(scanner, float).reshape(-1, 3), out_dir / TRACKS_FIGURE,
+                      f'{bag_path.name}: {len(confirmed_ids)} confirmed tracks with '
+                      f'velocity (1 s of travel)')
+        files.append(TRACKS_FIGURE)
+        files.append('summary.json')
+        summary['files'] = files
+        with atomic_path(out_dir / 'summary.json', overwrite=True) as tmp:
+            tmp.write_text(json.dumps(summary, indent=2, default=_json_default) + '\n')
+    else:
+        summary['files'] = []
+    return summary
+
+
+def _write_scan(result, ego_f, trk_f) -> None:
+    if ego_f is None:
+        return
+    x, y, t = result.pose
+    stamp = _fmt(result.stamp)
+    ego_f.write(f'{stamp},{x:.6f},{y:.6f},{t:.6f}\n')
+    h = result.hypotheses
+    if len(h):
+        lines = [f'{stamp},{int(i)},{p[0]:.4f},{p[1]:.4f},{v[0]:.4f},{v[1]:.4f},{w:.2f},{int(c)}\n'
+                 for i, p, v, w, c in zip(h.track_id, h.position, h.velocity, h.weight,
+                                          h.confirmed)]
+        trk_f.writelines(lines)
+
+
+def _reason_key(reason: str) -> str:
+    """Group reasons that differ only in numbers (beam counts, stamps)."""
+    return reason if len(reason) < 120 else reason[:117] + '...'
+
+
+def _progress(total: int, enabled: bool, name: str):
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+        enabled = False
+    if not enabled:
+        class _Null:
+            def update(self, n=1):
+                pass
+
+            def close(self):
+                pass
+        return _Null()
+    return tqdm(total=total, unit='scan', file=sys.stderr, desc=name, leave=False,
+                mininterval=0.2)
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, ConfigError):
+        return str(o)
+    raise TypeError(f'{type(o).__name__} is not JSON serialisable')

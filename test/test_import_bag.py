@@ -1,0 +1,176 @@
+"""`laser-tracker import-bag`: ROS 1 bags (and rosbag2) to rosbag2, losslessly for what the
+pipeline uses; bad input gives a clear error and leaves nothing behind."""
+import dataclasses
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag1 import Writer as Ros1Writer
+from rosbags.typesys import Stores, get_typestore
+
+from laser_tracker.cli import main
+from laser_tracker.conversions import (PlanarOdometry, bag_factory, odometry_to_msg,
+                                       scan_to_msg, stamp_to_sec)
+from laser_tracker.core.scan import Scan
+from laser_tracker.io.bag import iter_messages, read_odometry, topics
+from laser_tracker.sim.recorder import record
+from laser_tracker.sim.scenarios import build
+from laser_tracker.tools.import_bag import import_bag
+from laser_tracker.tools.simulate import write_recording
+
+DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
+LEG_BAG = DATA / 'leg_tracker' / 'demo_stationary_simple_environment.bag'
+ROS1 = get_typestore(Stores.ROS1_NOETIC)
+
+
+def _leg_bag():
+    if not LEG_BAG.is_file():
+        pytest.skip(f'{LEG_BAG} not found (real data lives beside the repo, in ../shared/data)')
+    return LEG_BAG
+
+
+def _messages(path, topic):
+    return [(t, msg) for _, t, msg in iter_messages(path, [topic])]
+
+
+def _ros1_bag(path, n=20, bad_scan_at=None):
+    """A small ROS 1 bag: /scan (181 beams) at 5 Hz, /base/odom at 25 Hz, /chatter."""
+    f = bag_factory(ROS1)
+    rng = np.random.default_rng(0)
+    with Ros1Writer(path) as w:
+        scan_c = w.add_connection('/scan', 'sensor_msgs/msg/LaserScan', typestore=ROS1)
+        odom_c = w.add_connection('/base/odom', 'nav_msgs/msg/Odometry', typestore=ROS1)
+        text_c = w.add_connection('/chatter', 'std_msgs/msg/String', typestore=ROS1)
+        t0 = 1_300_000_000.0
+        for k in range(n):
+            stamp = t0 + 0.2 * k
+            scan = Scan(stamp, rng.uniform(0.5, 7.9, 181).astype(np.float32), -math.pi / 2,
+                        math.pi / 180, 0.0, 8.0, 1e-5, 0.0133, 'laser')
+            msg = scan_to_msg(f, scan, intensities=np.arange(181.0))
+            if k == bad_scan_at:
+                msg = dataclasses.replace(msg, ranges=msg.ranges[:100])
+            w.write(scan_c, int(round((stamp + 0.05) * 1e9)),
+                    ROS1.serialize_ros1(msg, msg.__msgtype__))
+            for j in range(5):
+                ts = stamp + 0.04 * j
+                odo = odometry_to_msg(f, PlanarOdometry(ts, 0.1 * k, 0.01 * j, 0.02 * k, 0.5),
+                                      pose_variance=[0.01] * 6)
+                w.write(odom_c, int(round(ts * 1e9)), ROS1.serialize_ros1(odo, odo.__msgtype__))
+            s = f.make('std_msgs/msg/String', data='hi')
+            w.write(text_c, int(round(stamp * 1e9)), ROS1.serialize_ros1(s, s.__msgtype__))
+    return path
+
+
+def test_ros1_bag_converts_scans_and_odometry_keeping_times(tmp_path, capsys):
+    src = _ros1_bag(tmp_path / 'in.bag')
+    assert main(['import-bag', str(src), str(tmp_path / 'out')]) == 0
+    assert '/scan: 20' in capsys.readouterr().out
+    out = tmp_path / 'out'
+    assert topics(out) == {'/scan': ('sensor_msgs/msg/LaserScan', 20),
+                           '/base/odom': ('nav_msgs/msg/Odometry', 100)}
+    for topic in ('/scan', '/base/odom'):
+        before, after = _messages(src, topic), _messages(out, topic)
+        assert [t for t, _ in after] == pytest.approx([t for t, _ in before], abs=1000)  # 1 us
+        for (_, a), (_, b) in zip(before, after):
+            assert stamp_to_sec(b.header.stamp) == pytest.approx(stamp_to_sec(a.header.stamp),
+                                                                 abs=1e-6)
+            assert b.header.frame_id == a.header.frame_id
+            if topic == '/scan':
+                assert np.array_equal(b.ranges, a.ranges)
+                assert np.array_equal(b.intensities, a.intensities)
+                for f in ('angle_min', 'angle_increment', 'time_increment', 'scan_time',
+                          'range_min', 'range_max'):
+                    assert getattr(b, f) == getattr(a, f)
+                assert b.angle_max == pytest.approx(a.angle_max, abs=1e-6)   # recomputed
+            else:
+                assert b.child_frame_id == a.child_frame_id
+                assert np.allclose(b.pose.covariance, a.pose.covariance)
+    assert np.allclose(read_odometry(out, '/base/odom').poses,
+                       read_odometry(src, '/base/odom').poses)
+
+
+def test_topics_option_chooses_and_rejects(tmp_path, capsys):
+    src = _ros1_bag(tmp_path / 'in.bag', n=3)
+    assert main(['import-bag', str(src), str(tmp_path / 'a'), '--topics', '/base/odom']) == 0
+    assert set(topics(tmp_path / 'a')) == {'/base/odom'}
+    assert main(['import-bag', str(src), str(tmp_path / 'b'), '--topics', '/chatter']) == 2
+    assert 'only LaserScan and Odometry' in capsys.readouterr().err
+    assert main(['import-bag', str(src), str(tmp_path / 'c'), '--topics', '/nope']) == 2
+    assert "no topic '/nope'" in capsys.readouterr().err
+    assert not (tmp_path / 'b').exists() and not (tmp_path / 'c').exists()
+
+
+def test_a_malformed_scan_is_skipped_with_a_warning(tmp_path, caplog):
+    src = _ros1_bag(tmp_path / 'in.bag', n=5, bad_scan_at=2)
+    with caplog.at_level(logging.WARNING, logger='laser_tracker.tools.import_bag'):
+        counts = import_bag(src, tmp_path / 'out')
+    assert counts['/scan'] == 4 and counts['skipped'] == 1
+    assert 'skipped scan' in caplog.text and 'in.bag' in caplog.text
+
+
+def test_rosbag2_input_is_accepted(tmp_path):
+    rec = record(dataclasses.replace(build('exp1_stationary_single_walker'), duration=3.0))
+    src = write_recording(rec, tmp_path / 'sim')
+    counts = import_bag(src, tmp_path / 'out', storage='mcap')
+    assert counts == {'/odom': len(rec.odometry.stamps), '/ground_truth/platform': len(rec.truth),
+                      '/scan': len(rec.scans), 'skipped': 0}
+    for topic in ('/scan', '/odom'):
+        a, b = _messages(src, topic), _messages(tmp_path / 'out', topic)
+        assert [t for t, _ in a] == [t for t, _ in b]
+
+
+def test_real_leg_tracker_bag_keeps_every_scan(tmp_path):
+    src = _leg_bag()
+    counts = import_bag(src, tmp_path / 'out')
+    assert counts['/scan'] == 1265
+    before, after = _messages(src, '/scan'), _messages(tmp_path / 'out', '/scan')
+    assert len(after) == 1265
+    assert all(np.array_equal(a.ranges, b.ranges, equal_nan=True) and b.ranges.size == 512
+               for (_, a), (_, b) in zip(before, after))
+    assert all(abs(ta - tb) <= 1000 for (ta, _), (tb, _) in zip(before, after))
+
+
+def test_truncated_ros1_bag_names_the_offset_and_writes_nothing(tmp_path, capsys):
+    src = _leg_bag() if LEG_BAG.is_file() else _ros1_bag(tmp_path / 'in.bag')
+    data = src.read_bytes()
+    cut = tmp_path / 'cut.bag'
+    cut.write_bytes(data[:len(data) // 2])
+    assert main(['import-bag', str(cut), str(tmp_path / 'out')]) == 2
+    err = capsys.readouterr().err
+    assert str(cut) in err and f'byte offset {len(data) // 2}' in err and 'truncated' in err
+    assert not (tmp_path / 'out').exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith('.out')] == []
+    # Cut inside the index at the end: the index's offset is named.
+    tail = tmp_path / 'tail.bag'
+    tail.write_bytes(data[:-40])
+    assert main(['import-bag', str(tail), str(tmp_path / 'out')]) == 2
+    err = capsys.readouterr().err
+    assert str(tail) in err and 'index at byte offset' in err
+    assert not (tmp_path / 'out').exists()
+
+
+def test_garbage_and_truncated_rosbag2_are_clear_errors(tmp_path, capsys):
+    junk = tmp_path / 'junk.bag'
+    junk.write_bytes(b'#ROSBAG V2.0\n' + b'\x07' * 64)
+    assert main(['import-bag', str(junk), str(tmp_path / 'out')]) == 2
+    assert 'junk.bag: byte offset 13' in capsys.readouterr().err
+    rec = record(dataclasses.replace(build('exp3_rotating_static'), duration=4.0))
+    src = write_recording(rec, tmp_path / 'sim')
+    db = next(src.glob('*.db3'))
+    db.write_bytes(db.read_bytes()[:db.stat().st_size // 2])
+    assert main(['import-bag', str(src), str(tmp_path / 'out')]) == 2
+    assert str(src) in capsys.readouterr().err
+    assert not (tmp_path / 'out').exists()
+    assert main(['import-bag', str(tmp_path / 'missing.bag'), str(tmp_path / 'out')]) == 2
+    assert 'no such file' in capsys.readouterr().err
+
+
+def test_existing_output_needs_overwrite(tmp_path, capsys):
+    src = _ros1_bag(tmp_path / 'in.bag', n=2)
+    (tmp_path / 'out').mkdir()
+    assert main(['import-bag', str(src), str(tmp_path / 'out')]) == 2
+    assert 'already exists' in capsys.readouterr().err
+    assert main(['import-bag', str(src), str(tmp_path / 'out'), '--overwrite']) == 0
+    assert topics(tmp_path / 'out')['/scan'][1] == 2

@@ -1,0 +1,102 @@
+"""`laser-tracker simulate` and `laser-tracker summarize`: bags that round-trip, clear errors."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from laser_tracker.cli import main
+from laser_tracker.io.bag import (read_ground_truth, read_odometry, read_platform_truth,
+                                  read_scans, topics)
+from laser_tracker.sim.recorder import record
+from laser_tracker.sim.scenarios import SCENARIOS, build
+from laser_tracker.tools.simulate import write_recording
+
+
+def _short(name='exp1_stationary_single_walker', seconds=6.0):
+    return record(dataclasses.replace(build(name), duration=seconds))
+
+
+@pytest.mark.parametrize('storage', ['sqlite3', 'mcap'])
+def test_bag_round_trips(tmp_path, storage):
+    rec = _short()
+    out = write_recording(rec, tmp_path / 'bag', storage=storage)
+    scans = list(read_scans(out))
+    assert len(scans) == len(rec.scans)
+    for got, want in zip(scans, rec.scans):
+        assert got.stamp == pytest.approx(want.stamp, abs=1e-9)
+        assert np.array_equal(got.ranges, want.ranges.astype(np.float32))
+        for f in ('angle_min', 'angle_increment', 'range_max', 'time_increment', 'scan_time'):
+            assert getattr(got, f) == pytest.approx(getattr(want, f), rel=1e-6)
+        assert got.frame_id == 'laser'
+    odom = read_odometry(out)
+    assert np.allclose(odom.stamps, rec.odometry.stamps, atol=1e-9)
+    assert np.allclose(odom.poses, rec.odometry.poses, atol=1e-9)
+    truth = read_ground_truth(out)
+    assert len(truth) == len(rec.truth)
+    for got, want in zip(truth, rec.truth):
+        assert got.frame_id == 'map'
+        assert got.stamp == pytest.approx(want.stamp, abs=1e-9)
+        assert [(o.id, o.extra) for o in got.objects] == [(o.id, o.extra) for o in want.objects]
+        assert np.allclose([(o.x, o.y, o.vx, o.vy) for o in got.objects],
+                           [(o.x, o.y, o.vx, o.vy) for o in want.objects])
+    platform = read_platform_truth(out)
+    assert np.allclose(platform.poses, [(g.platform.x, g.platform.y, g.platform.theta)
+                                        for g in rec.truth])
+    t = topics(out)
+    assert t['/scan'] == ('sensor_msgs/msg/LaserScan', len(rec.scans))
+    assert t['/odom'][0] == 'nav_msgs/msg/Odometry'
+
+
+def test_simulate_writes_the_scenario_and_summarize_describes_it(tmp_path, capsys):
+    out = tmp_path / 'exp3'
+    assert main(['simulate', 'exp3_rotating_static', str(out), '--seed', '11']) == 0
+    assert 'seed 11, 100 scans' in capsys.readouterr().out
+    assert main(['summarize', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert '/scan' in text and '/ground_truth/platform' in text
+    assert '361 beams' in text and '5.00 Hz' in text
+    assert 'turned' in text and '0 moving object(s)' in text
+
+
+def test_summarize_lists_ground_truth_objects(tmp_path, capsys):
+    out = write_recording(_short('exp4_corridor_passers', 20.0), tmp_path / 'c')
+    assert main(['summarize', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert 'id   1 person' in text and 'visible in' in text
+
+
+def test_list_names_every_scenario(capsys):
+    assert main(['simulate', '--list']) == 0
+    text = capsys.readouterr().out
+    assert all(name in text for name in SCENARIOS)
+
+
+def test_unknown_scenario_is_a_clear_error(tmp_path, capsys):
+    assert main(['simulate', 'exp9_moonwalk', str(tmp_path / 'x')]) == 2
+    err = capsys.readouterr().err
+    assert 'unknown scenario' in err and 'exp1_stationary_single_walker' in err
+    assert not (tmp_path / 'x').exists()
+
+
+def test_missing_arguments_are_a_clear_error(capsys):
+    assert main(['simulate', 'exp1_stationary_single_walker']) == 2
+    assert 'give SCENARIO and OUT' in capsys.readouterr().err
+
+
+def test_existing_output_needs_overwrite(tmp_path, capsys):
+    out = tmp_path / 'bags'
+    (out / 'exp3_rotating_static').mkdir(parents=True)
+    (out / 'exp3_rotating_static' / 'keep.txt').write_text('mine')
+    assert main(['simulate', 'all', str(out)]) == 2
+    assert 'already exists' in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ['exp3_rotating_static']   # nothing written
+    assert (out / 'exp3_rotating_static' / 'keep.txt').read_text() == 'mine'
+    assert main(['simulate', 'exp3_rotating_static', str(out / 'exp3_rotating_static'),
+                 '--overwrite']) == 0
+    assert not (out / 'exp3_rotating_static' / 'keep.txt').exists()
+    assert topics(out / 'exp3_rotating_static')['/scan'][1] == 100
+
+
+def test_summarize_of_a_missing_bag_is_a_clear_error(tmp_path, capsys):
+    assert main(['summarize', str(tmp_path / 'nothing')]) == 2
+    assert 'no such file' in capsys.readouterr().err
