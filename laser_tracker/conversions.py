@@ -356,3 +356,80 @@ def point_stamped_msg(factory: MessageFactory, stamp: float, frame_id: str, x: f
     f = factory
     return f.make('geometry_msgs/msg/PointStamped', header=header(f, stamp, frame_id),
                   point=f.make('geometry_msgs/msg/Point', x=float(x), y=float(y), z=float(z)))
+
+
+# ------------------------------------------------------------------------------------ blobs
+
+MARKER_CYLINDER = 3
+
+
+def blobs_to_marker_array(factory: MessageFactory, blobs):
+    """``core.blobs.Blobs`` -> the ``blobs`` topic MarkerArray (schema in core/pipeline.py).
+
+    A DELETEALL marker, one CYLINDER per blob (ns ``blobs``, id = index, position = centroid,
+    scale.x = scale.y = extent, text = JSON ``{"cells": n, "structure": angle or null}``),
+    and one ARROW (ns ``scanner``, id 0) whose pose is the scanner pose.
+    """
+    f = factory
+    stamp, frame_id = float(blobs.stamp), blobs.frame_id
+
+    def pose(x, y, yaw=0.0):
+        return f.make('geometry_msgs/msg/Pose',
+                      position=f.make('geometry_msgs/msg/Point', x=float(x), y=float(y), z=0.0),
+                      orientation=f.make('geometry_msgs/msg/Quaternion',
+                                         **quaternion_from_yaw(float(yaw))))
+
+    def color(r, g, b, a):
+        return f.make('std_msgs/msg/ColorRGBA', r=r, g=g, b=b, a=a)
+
+    markers = [f.make('visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
+                      ns='blobs', id=0, action=MARKER_DELETEALL)]
+    for i in range(blobs.count):
+        extent = max(float(blobs.extent[i]), 0.05)
+        structure = float(blobs.structure[i])
+        text = json.dumps({'cells': int(blobs.cells[i]),
+                           'structure': None if math.isnan(structure) else structure},
+                          separators=(',', ':'))
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='blobs',
+            id=i, type=MARKER_CYLINDER, action=MARKER_ADD, pose=pose(*blobs.xy[i]),
+            scale=f.make('geometry_msgs/msg/Vector3', x=extent, y=extent, z=0.1),
+            color=color(1.0, 0.4, 0.0, 0.8), text=text))
+    x, y, theta = (float(v) for v in blobs.origin)
+    markers.append(f.make(
+        'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='scanner',
+        id=0, type=MARKER_ARROW, action=MARKER_ADD, pose=pose(x, y, theta),
+        scale=f.make('geometry_msgs/msg/Vector3', x=0.4, y=0.05, z=0.05),
+        color=color(0.2, 0.8, 0.2, 0.8)))
+    return f.make('visualization_msgs/msg/MarkerArray', markers=markers)
+
+
+def blobs_from_marker_array(msg):
+    """The ``blobs`` topic MarkerArray -> ``core.blobs.Blobs``.
+
+    Raises ValueError if the array has no ``scanner`` marker (not a blobs message).
+    """
+    from laser_tracker.core.blobs import Blobs
+
+    rows, origin, stamp, frame_id = [], None, math.nan, 'odom'
+    for m in msg.markers:
+        if m.action != MARKER_ADD:
+            continue
+        if m.ns == 'scanner':
+            p = m.pose
+            origin = (p.position.x, p.position.y, yaw_from_quaternion(p.orientation))
+            stamp, frame_id = stamp_to_sec(m.header.stamp), str(m.header.frame_id)
+        elif m.ns == 'blobs' and m.type == MARKER_CYLINDER:
+            try:
+                extra = json.loads(m.text) if m.text else {}
+            except json.JSONDecodeError:
+                extra = {}
+            structure = extra.get('structure')
+            rows.append((m.pose.position.x, m.pose.position.y, int(extra.get('cells', 1)),
+                         float(m.scale.x), math.nan if structure is None else float(structure)))
+    if origin is None:
+        raise ValueError('MarkerArray has no scanner marker: not a blobs message')
+    arr = np.array(rows, dtype=float).reshape(-1, 5)
+    return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
+                 cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
+                 structure=arr[:, 4].copy(), frame_id=frame_id)

@@ -12,9 +12,12 @@ cells, tracked as though it were the whole target. Each blob carries:
 
 * ``xy``: centroid in the odometry frame (metres), from the scanner pose ``origin``;
 * ``cells``: number of cells; ``extent``: the larger side of its bounding box (metres);
-* ``structure``: direction (radians, odometry frame, modulo pi) of the static structure
-  around it, NaN when there is none (see :func:`structure_angles`). The tracker halves the
+* ``structure``: direction (radians, odometry frame, modulo pi) of the wall-like structure
+  it lies on, NaN when there is none (see :func:`structure_angles`). The tracker halves the
   weight of a hypothesis moving along it (paper Sec. 8, the wall penalty).
+
+Visible surfaces are runs of consecutive scan end points (beam order) closer than
+``surface_gap``; a blob belongs to the surface of the end point nearest its centroid.
 
 :class:`Blobs` is the whole interface between detection and tracking: plain arrays that
 ``laser_tracker.core.pipeline`` documents as a MarkerArray schema.
@@ -28,7 +31,6 @@ import numpy as np
 from scipy import ndimage
 
 from laser_tracker.config import param
-from laser_tracker.core.grid import cell_centres
 
 log = logging.getLogger(__name__)
 
@@ -56,14 +58,14 @@ class BlobConfig:
                                "belong to different surfaces.", min=0.01, max=5.0)
     surface_radius: float = param(0.5, 'A surface extends at most this far (m) from the '
                                   'changed cells it is found from.', min=0.05, max=5.0)
-    structure_radius: float = param(0.3, 'Static occupied cells within this distance (m) of a '
-                                    "blob's centroid make up the structure it lies on.",
+    structure_radius: float = param(0.4, "The points of a blob's surface within this distance "
+                                    '(m) of its changed cells are the structure it lies on.',
                                     min=0.0, max=5.0)
-    structure_min_cells: int = param(4, 'Fewest static cells that count as structure.',
-                                     min=1, max=1000)
-    structure_elongation: float = param(2.5, 'Ratio of the principal standard deviations of '
-                                        'the static cells above which they form a line '
-                                        '(a wall) with a direction.', min=1.0, max=100.0)
+    structure_min_points: int = param(6, 'Fewest such points that can form a wall.', min=3,
+                                      max=1000)
+    structure_elongation: float = param(3.0, 'Ratio of the principal standard deviations of '
+                                        'those points above which they form a line (a wall) '
+                                        'with a direction.', min=1.0, max=100.0)
 
 
 @dataclass
@@ -124,46 +126,46 @@ def label_cells(flat: np.ndarray, cells: int) -> tuple[int, np.ndarray, list]:
 
 
 def segment(changed: np.ndarray, cells: int, resolution: float, origin, stamp: float,
-            config: BlobConfig, static_xy: np.ndarray | None = None,
-            points: np.ndarray | None = None) -> Blobs:
+            config: BlobConfig, points: np.ndarray | None = None) -> Blobs:
     """Blobs of the changed cells ``changed`` (sorted unique flat indices).
 
-    ``origin`` is the scanner pose in the odometry frame; ``static_xy`` the static occupied
-    points (scanner frame) for the structure test (None: no structure); ``points`` the scan's
-    end points in beam order (scanner frame) for ``position='surface'``.
+    ``origin`` is the scanner pose in the odometry frame; ``points`` the scan's end points in
+    beam order (scanner frame), for the surfaces (position and structure; None: neither).
     """
     origin = np.asarray(origin, dtype=float)
     count, labels, boxes = label_cells(changed, cells)
     if count == 0:
         return Blobs.empty(stamp, origin)
-    centres = cell_centres(cells, resolution, changed)
+    ix, iy = np.divmod(changed, cells)
     n = np.bincount(labels, minlength=count)
-    local = np.column_stack((np.bincount(labels, centres[:, 0], count),
-                             np.bincount(labels, centres[:, 1], count))) / n[:, None]
+    half = cells / 2.0 - 0.5
+    local = np.empty((count, 2))
+    local[:, 0] = np.bincount(labels, ix, count)
+    local[:, 1] = np.bincount(labels, iy, count)
+    local /= n[:, None]
+    local -= half
+    local *= resolution
     extent = resolution * np.array([max(b[0].stop - b[0].start, b[1].stop - b[1].start)
                                     for b in boxes], dtype=float)
-    keep = n >= config.min_cells
-    if config.max_cells:
-        keep &= n <= config.max_cells
     dropped = 0
-    if keep.sum() > config.max_blobs:
-        order = np.argsort(-n, kind='stable')
-        kept = order[keep[order]][:config.max_blobs]
-        dropped = int(keep.sum()) - config.max_blobs
-        keep = np.zeros(count, dtype=bool)
-        keep[kept] = True
-        log.warning('%d blobs in one scan at t=%.3f: kept the %d largest (blobs.max_blobs)',
-                    count, stamp, config.max_blobs)
-    if not keep.all():
+    if config.min_cells > 1 or config.max_cells or count > config.max_blobs:
+        keep = n >= config.min_cells
+        if config.max_cells:
+            keep &= n <= config.max_cells
+        if keep.sum() > config.max_blobs:
+            order = np.argsort(-n, kind='stable')
+            kept = order[keep[order]][:config.max_blobs]
+            dropped = int(keep.sum()) - config.max_blobs
+            keep = np.zeros(count, dtype=bool)
+            keep[kept] = True
+            log.warning('%d blobs in one scan at t=%.3f: kept the %d largest '
+                        '(blobs.max_blobs)', count, stamp, config.max_blobs)
         local, n, extent = local[keep], n[keep], extent[keep]
-    surface = None
-    if config.position == 'surface' and points is not None and points.shape[0] and \
-            local.shape[0]:
+    if points is not None and points.shape[0] and local.shape[0]:
         surface = _Surfaces(points, config.surface_gap, local, resolution)
-        # Changed components on one visible surface are one blob.
-        sid = surface.sid
-        if sid.size > 1:
-            sid = np.where(sid >= 0, sid, -1 - np.arange(sid.size))
+        if config.position == 'surface' and surface.sid.size > 1:
+            # Changed components on one visible surface are one blob.
+            sid = np.where(surface.sid >= 0, surface.sid, -1 - np.arange(surface.sid.size))
             groups, inverse = np.unique(sid, return_inverse=True)
             if groups.size < sid.size:
                 g = groups.size
@@ -176,17 +178,18 @@ def segment(changed: np.ndarray, cells: int, resolution: float, origin, stamp: f
                 n, extent = total.astype(np.int64), big
                 surface = _Surfaces(points, config.surface_gap, local, resolution,
                                     surface.id)
-    if static_xy is not None and static_xy.shape[0] and local.shape[0]:
-        structure = structure_angles(local, static_xy, resolution, config) + origin[2]
-        structure = np.mod(structure, np.pi)
+        centroid, structure = surface.measure(local, config, resolution)
+        structure += origin[2]
+        np.mod(structure, np.pi, out=structure)
+        if config.position == 'surface':
+            local = centroid
     else:
         structure = np.full(local.shape[0], np.nan)
-    if surface is not None:
-        local = surface.centroids(local, config.surface_radius)
     x, y, t = origin
     c, s = np.cos(t), np.sin(t)
-    xy = np.column_stack((x + c * local[:, 0] - s * local[:, 1],
-                          y + s * local[:, 0] + c * local[:, 1]))
+    xy = local @ np.array([[c, s], [-s, c]])
+    xy[:, 0] += x
+    xy[:, 1] += y
     return Blobs(stamp=float(stamp), origin=origin, xy=xy, cells=n.astype(np.int64),
                  extent=extent, structure=structure, dropped=dropped)
 
@@ -200,80 +203,72 @@ class _Surfaces:
                  resolution: float, ids: np.ndarray | None = None):
         self.points = points
         if ids is None:
-            step = points[1:] - points[:-1]
+            step = np.diff(points, axis=0)
             ids = np.empty(points.shape[0], np.intp)
             ids[0] = 0
-            np.cumsum((step * step).sum(axis=1) > gap * gap, out=ids[1:])
+            np.cumsum(np.einsum('ij,ij->i', step, step) > gap * gap, out=ids[1:])
         self.id = ids
-        d2 = ((centroids[:, None, :] - points[None, :, :]) ** 2).sum(axis=2)
+        d = centroids[:, None, :] - points[None, :, :]
+        d2 = np.einsum('bmk,bmk->bm', d, d)
         near = d2.argmin(axis=1)
         ok = d2[np.arange(centroids.shape[0]), near] <= 2.0 * resolution ** 2
         self.d2 = d2
         self.sid = np.where(ok, ids[near], -1)
 
-    def centroids(self, centroids: np.ndarray, radius: float) -> np.ndarray:
-        """Centroid of the surface each blob lies on, limited to ``radius`` around the blob.
+    def measure(self, centroids: np.ndarray, config: BlobConfig,
+                resolution: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per blob: the centroid of its surface within ``surface_radius`` (its own centroid
+        when it has no surface) and the direction of the wall it lies on (NaN: none).
 
-        A blob with no surface keeps its own centroid.
+        A blob lies on a wall when the points of its surface within ``structure_radius``
+        number at least ``structure_min_points``, their principal standard deviations differ
+        by at least ``structure_elongation`` (a line, not a clump such as a leg) and the line
+        runs past the blob on both sides: the blob is nearer the middle of those points than
+        one standard deviation along the line. That tells a misregistered stretch of wall,
+        which continues past its noise blob, from the leading edge of an object moving along
+        its own side (a robot's flank), whose surface lies behind the blob only (a uniform
+        stretch behind a point has its mean sqrt(3) standard deviations away).
         """
-        w = (self.id[None, :] == self.sid[:, None]) & (self.d2 <= radius * radius)
-        count = w.sum(axis=1)
-        use = (self.sid >= 0) & (count > 0)
-        if not use.any():
-            return centroids
+        p = self.points
+        same = self.id[None, :] == self.sid[:, None]
+        same &= (self.sid >= 0)[:, None]
+        r_pos, r_wall = config.surface_radius, config.structure_radius
+        w = (same & (self.d2 <= max(r_pos, r_wall) ** 2)).astype(np.float64)
+        if r_pos == r_wall:
+            w_pos = w_wall = w
+        else:
+            w_pos = w * (self.d2 <= r_pos * r_pos)
+            w_wall = w * (self.d2 <= r_wall * r_wall)
+        count = w_pos.sum(axis=1)
         out = centroids.copy()
-        out[use] = (w[use].astype(np.float64) @ self.points) / count[use, None]
-        return out
+        use = count > 0
+        if use.any():
+            out[use] = (w_pos[use] @ p) / count[use, None]
+        structure = np.full(centroids.shape[0], np.nan)
+        cw = w_wall.sum(axis=1)
+        ok = cw >= config.structure_min_points
+        if not ok.any():
+            return out, structure
+        wk, cw, c = w_wall[ok], cw[ok], centroids[ok]
+        m = (wk @ np.column_stack((p, p * p, p[:, 0] * p[:, 1]))) / cw[:, None]
+        mx, my = m[:, 0], m[:, 1]
+        q = resolution * resolution / 12.0   # quantisation floor
+        cxx = m[:, 2] - mx * mx + q
+        cyy = m[:, 3] - my * my + q
+        cxy = m[:, 4] - mx * my
+        half_tr = 0.5 * (cxx + cyy)
+        root = np.sqrt(np.maximum(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
+        l1, l2 = half_tr + root, np.maximum(half_tr - root, 1e-12)
+        angle = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+        offset = (mx - c[:, 0]) * np.cos(angle) + (my - c[:, 1]) * np.sin(angle)
+        wall = (l1 >= config.structure_elongation ** 2 * l2) & (offset * offset < l1)
+        structure[ok] = np.where(wall, angle, np.nan)
+        return out, structure
 
 
-def surface_centroids(centroids: np.ndarray, points: np.ndarray, gap: float, radius: float,
-                      resolution: float) -> np.ndarray:
-    """Centroid of the visible surface each blob belongs to (scanner frame).
-
-    ``points`` are the scan's end points in beam order. Surfaces are runs of consecutive
-    points closer than ``gap``; a blob's surface is the run holding the point nearest its
-    centroid, limited to the points within ``radius`` of the centroid. A blob with no point
-    within a cell diagonal keeps its centroid.
-    """
-    return _Surfaces(points, gap, centroids, resolution).centroids(centroids, radius)
-
-
-def structure_angles(centroids: np.ndarray, static_xy: np.ndarray, resolution: float,
-                     config: BlobConfig) -> np.ndarray:
-    """Direction of the wall-like structure each centroid lies on (scanner frame), or NaN.
-
-    The static cells within ``structure_radius`` of a centroid form a wall through it when
-    there are at least ``structure_min_cells`` of them, their principal standard deviations
-    differ by at least ``structure_elongation`` (a line, not a clump) and the line runs past
-    the blob on both sides (at least two cells beyond one cell from the centroid each way).
-    The last condition tells a misregistered stretch of wall, which continues past its noise
-    blob, from the leading edge of an object moving along its own side (a robot's flank),
-    which is static behind the blob only. Angle of the principal axis, radians mod pi.
-    Vectorised over blobs and cells.
-    """
-    dx = static_xy[None, :, 0] - centroids[:, None, 0]
-    dy = static_xy[None, :, 1] - centroids[:, None, 1]
-    near = dx * dx + dy * dy <= config.structure_radius ** 2
-    w = near.astype(np.float64)
-    count = w.sum(axis=1)
-    out = np.full(centroids.shape[0], np.nan)
-    ok = count >= config.structure_min_cells
-    if not ok.any():
-        return out
-    w, count, near, dx, dy = w[ok], count[ok], near[ok], dx[ok], dy[ok]
-    mx, my = (w * dx).sum(axis=1) / count, (w * dy).sum(axis=1) / count
-    q = resolution * resolution / 12.0   # quantisation variance of a cell centre
-    cxx = (w * dx * dx).sum(axis=1) / count - mx * mx + q
-    cyy = (w * dy * dy).sum(axis=1) / count - my * my + q
-    cxy = (w * dx * dy).sum(axis=1) / count - mx * my
-    half_tr = 0.5 * (cxx + cyy)
-    root = np.sqrt(np.maximum(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
-    l1, l2 = half_tr + root, np.maximum(half_tr - root, 1e-12)
-    line = l1 >= config.structure_elongation ** 2 * l2
-    angle = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
-    along = dx * np.cos(angle)[:, None] + dy * np.sin(angle)[:, None]
-    ahead = (near & (along > resolution)).sum(axis=1)
-    behind = (near & (along < -resolution)).sum(axis=1)
-    wall = line & (ahead >= 2) & (behind >= 2)
-    out[ok] = np.where(wall, angle, np.nan)
-    return out
+def surface_centroids(centroids: np.ndarray, points: np.ndarray, config: BlobConfig,
+                      resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Surface centroids and wall directions of blobs at ``centroids`` (scanner frame) given
+    the scan's end points in beam order: see ``_Surfaces.measure``."""
+    return _Surfaces(points, config.surface_gap, centroids, resolution).measure(
+        centroids, config, resolution)

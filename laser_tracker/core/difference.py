@@ -14,9 +14,6 @@ neighbours to have been FREE too, which tolerates a one-cell misalignment of the
 (ego-motion error, the nearest-cell resampling) at the price of missing objects that move
 into cells next to other occupied or unknown cells.
 
-The same lookup also yields the *static* occupied cells (occupied now and occupied before at
-the cell or one of its 4-neighbours): the structure the wall test of the tracker compares
-hypothesis motion with (see ``blobs.structure_angles``).
 """
 from __future__ import annotations
 
@@ -44,23 +41,17 @@ def difference_map(grid: np.ndarray, previous_in_current: np.ndarray) -> np.ndar
 
 
 def changed_cells(ij: np.ndarray, previous_padded: np.ndarray, motion, resolution: float,
-                  config: DifferenceConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Equation 1 evaluated at the occupied cells only.
+                  config: DifferenceConfig) -> np.ndarray:
+    """Equation 1 evaluated at the occupied cells only: a boolean mask over the rows of ``ij``.
 
     ``ij``: cell indices (k, 2) of the cells occupied now (one row per end point, repeats
-    allowed); ``previous_padded``: the previous grid in its own frame with its one-cell
-    UNKNOWN border (``GridFrame.padded``); ``motion``: current scanner pose in the previous
-    scanner frame. Returns boolean masks over the rows of ``ij``:
-    (changed = D, static = occupied before at the cell or a 4-neighbour).
+    allowed); ``previous_padded``: the previous grid in its own frame with its UNKNOWN border
+    (``GridFrame.padded``); ``motion``: current scanner pose in the previous scanner frame.
     """
     if ij.shape[0] == 0:
-        empty = np.zeros(0, dtype=bool)
-        return empty, empty
+        return np.zeros(0, dtype=bool)
     k = config.free_neighbourhood
-    before = lookup_padded(previous_padded, motion, resolution, ij, neighbourhood=max(k, 1))
+    before = lookup_padded(previous_padded, motion, resolution, ij, neighbourhood=k)
     if k == 0:
-        changed = before[:, 0] == FREE
-    else:
-        changed = (before == FREE).all(axis=1)
-    static = (before[:, :5] == OCCUPIED).any(axis=1)
-    return changed, static
+        return before[:, 0] == FREE
+    return (before == FREE).all(axis=1)

@@ -148,8 +148,8 @@ class IcpResult:
     """Outcome of :func:`align` (the caller applies its acceptance rules)."""
 
     pose: np.ndarray            # (3,) final scanner pose in the world frame
-    hessian: np.ndarray         # (3, 3) point term J^T W J at the solution (scanner frame)
-    information: np.ndarray     # (3, 3) H / sigma^2 + prior information
+    hessian: np.ndarray         # (3, 3) J^T W J at the solution (scanner-frame perturbation)
+    sum_weights: float          # sum of the robust weights of the final associations
     iterations: int
     converged: bool
     n_source: int
@@ -158,121 +158,115 @@ class IcpResult:
     eigenvalues: np.ndarray     # normalised Hessian eigenvalues (ascending), see align()
     eigenvectors: np.ndarray    # matching eigenvectors (columns), scaled coordinates
     scale: float                # rotation scale L (m) used for the normalisation
-    sigma: float                # estimated point residual sigma (m)
+    last_step: np.ndarray       # the last Gauss-Newton update (convergence diagnostics)
 
     @property
     def inlier_ratio(self) -> float:
         return self.n_inliers / self.n_source if self.n_source else 0.0
 
 
-def align(source: np.ndarray, ref: LocalMap, pose0, prior_pose=None,
-          prior_information=None, distances=(1.0, 0.5, 0.25, 0.1), kernel_ratio: float = 0.3,
-          max_iterations: int = 20, tol_translation: float = 1e-4,
-          tol_rotation: float = 1e-4, min_iterations_per_level: int = 1) -> IcpResult:
+def align(source: np.ndarray, ref: LocalMap, pose0, distances=(1.0, 0.5, 0.25, 0.1),
+          kernel_ratio: float = 0.3, steps_per_association: int = 2,
+          final_associations: int = 2, tol_translation: float = 1e-4,
+          tol_rotation: float = 1e-4, damping: float = 1e-6) -> IcpResult:
     """Align ``source`` points (M, 2, scanner frame) to ``ref`` starting at ``pose0``.
 
-    Gauss-Newton on the point-to-line residuals ``n . (T p - q)`` with Cauchy weights of
-    scale ``kernel_ratio * d`` where ``d`` is the current association distance; ``distances``
-    is the coarse-to-fine schedule (the next level starts when an update is below the
-    tolerances; convergence = that at the last level). ``prior_pose`` with
-    ``prior_information`` (3x3, scanner-frame perturbation, 1/m^2 and 1/rad^2) adds a Gaussian
-    prior; residual information is normalised by the residual variance estimated each
-    iteration.
+    Coarse-to-fine: for each association distance ``d`` in ``distances`` the source points
+    are associated once with their nearest map point within ``d`` (one KD-tree query for all
+    points), then up to ``steps_per_association`` Gauss-Newton steps on the point-to-line
+    residuals ``n . (T p - q)`` with Cauchy weights of scale ``kernel_ratio * d`` are taken
+    with those associations (stopping early when a step is below the tolerances). The last
+    distance is associated ``final_associations`` times. ``damping`` (relative to the
+    Hessian's trace) keeps a degenerate problem solvable; the caller handles degeneracy.
 
-    The normalised Hessian is ``S H S / sum(w)`` with ``S = diag(1, 1, 1/L)`` and ``L`` the
-    RMS range of the matched points: its eigenvalues are the weighted fraction of points that
-    constrain each direction (1 for a translation constrained by every point).
+    The normalised Hessian ``S H S / sum(w)`` with ``S = diag(1, 1, 1/L)`` (``L`` the RMS
+    range of the matched points) has eigenvalues equal to the weighted fraction of points
+    that constrain each direction (1 for a translation constrained by every point).
     """
     ref.build()
     pose = np.array(pose0, dtype=float)
     n_src = source.shape[0]
-    px = source[:, 0]
-    py = source[:, 1]
+    px_all = source[:, 0]
+    py_all = source[:, 1]
     ref_pts = ref.points
     ref_nrm = ref.normals
     n_ref = ref_pts.shape[0]
     tree = ref.tree
-    zero3 = np.zeros((3, 3))
-    if prior_pose is None or prior_information is None:
-        prior_pose, lam = None, zero3
-    else:
-        lam = np.asarray(prior_information, dtype=float)
-    level = 0
-    level_iters = 0
-    converged = False
-    it = 0
-    hess = zero3
-    info = zero3
-    n_in = 0
-    rms = float('inf')
-    sigma2 = 0.05 ** 2
+    hess = np.zeros((3, 3))
     sum_w = 0.0
-    scale = 1.0
+    sigma2 = 0.0
+    n_in = 0
+    iterations = 0
+    converged = False
+    last_delta = np.zeros(3)
+    px = py = np.zeros(0)
+    schedule = list(distances[:-1]) + [distances[-1]] * max(1, int(final_associations))
+    eye_damp = np.eye(3)
     src_xy = np.empty((n_src, 2))
-    for it in range(1, max_iterations + 1):
-        d = distances[level]
+    for level, d in enumerate(schedule):
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        src_xy[:, 0] = c * px - s * py + pose[0]
-        src_xy[:, 1] = s * px + c * py + pose[1]
-        dist, idx = tree.query(src_xy, k=1, distance_upper_bound=d)
-        sel = np.nonzero(idx < n_ref)[0]
-        n_in = sel.size
+        src_xy[:, 0] = c * px_all - s * py_all + pose[0]
+        src_xy[:, 1] = s * px_all + c * py_all + pose[1]
+        _, idx = tree.query(src_xy, k=1, distance_upper_bound=d)
+        sel = idx < n_ref
+        n_in = int(np.count_nonzero(sel))
         if n_in < 3:
             break
         j = idx[sel]
-        nrm = ref_nrm[j]
-        diff = src_xy[sel] - ref_pts[j]
-        r = nrm[:, 0] * diff[:, 0] + nrm[:, 1] * diff[:, 1]
-        # scanner-frame normal and rotation Jacobian
-        nsx = c * nrm[:, 0] + s * nrm[:, 1]
-        nsy = -s * nrm[:, 0] + c * nrm[:, 1]
-        pxs, pys = px[sel], py[sel]
+        qx = ref_pts[j, 0]
+        qy = ref_pts[j, 1]
+        nx = ref_nrm[j, 0]
+        ny = ref_nrm[j, 1]
+        px = px_all[sel]
+        py = py_all[sel]
+        inv_k2 = 1.0 / (kernel_ratio * d) ** 2
         jac = np.empty((n_in, 3))
-        jac[:, 0] = nsx
-        jac[:, 1] = nsy
-        jac[:, 2] = pxs * nsy - pys * nsx
-        k = kernel_ratio * d
-        w = 1.0 / (1.0 + (r * (1.0 / k)) ** 2)
-        jw = jac * w[:, None]
-        hess = jw.T @ jac
-        grad = jw.T @ r
-        sum_w = float(w.sum())
-        wr2 = float(w @ (r * r))
-        sigma2 = max(wr2 / max(sum_w - 3.0, 1.0), 1e-6)
-        info = hess / sigma2
-        b = grad / sigma2
-        if prior_pose is not None:
-            e = _between(prior_pose, pose)
-            info = info + lam
-            b = b + lam @ e
-        try:
-            delta = -np.linalg.solve(info, b)
-        except np.linalg.LinAlgError:
-            break
-        pose = _compose(pose, delta)
-        level_iters += 1
-        small = abs(delta[0]) + abs(delta[1]) < tol_translation and abs(delta[2]) < tol_rotation
-        if small and level_iters >= min_iterations_per_level:
-            if level == len(distances) - 1:
-                converged = True
+        for _ in range(max(1, int(steps_per_association))):
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            # scanner-frame normal (R^T n) and the rotation Jacobian n_s x p
+            nsx = c * nx + s * ny
+            nsy = c * ny - s * nx
+            r = nsx * px + nsy * py + (nx * (pose[0] - qx) + ny * (pose[1] - qy))
+            jac[:, 0] = nsx
+            jac[:, 1] = nsy
+            jac[:, 2] = px * nsy - py * nsx
+            w = 1.0 / (1.0 + r * r * inv_k2)
+            jw = jac * w[:, None]
+            hess = jw.T @ jac
+            grad = jw.T @ r
+            a = hess + (damping * (hess[0, 0] + hess[1, 1] + hess[2, 2]) + 1e-12) * eye_damp
+            try:
+                delta = -np.linalg.solve(a, grad)
+            except np.linalg.LinAlgError:
                 break
-            level += 1
-            level_iters = 0
-        elif level < len(distances) - 1 and level_iters >= 4:
-            level += 1
-            level_iters = 0
-    rms = math.sqrt(sigma2)
+            pose = _compose(pose, delta)
+            iterations += 1
+            last_delta = delta
+            if abs(delta[0]) + abs(delta[1]) < tol_translation and abs(delta[2]) < tol_rotation:
+                break
+        last_level = level == len(schedule) - 1
+        if last_level:
+            converged = (abs(last_delta[0]) + abs(last_delta[1]) < 10 * tol_translation
+                         and abs(last_delta[2]) < 10 * tol_rotation)
     if n_in >= 3:
-        scale = max(math.sqrt(float(np.mean(px[sel] ** 2 + py[sel] ** 2))), 0.1)
+        # residuals at the final pose (for sigma) with the last associations
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        r = (c * nx + s * ny) * px + (c * ny - s * nx) * py + (nx * (pose[0] - qx)
+                                                             + ny * (pose[1] - qy))
+        w = 1.0 / (1.0 + r * r * inv_k2)
+        sum_w = float(w.sum())
+        sigma2 = float(w @ (r * r)) / max(sum_w, 1e-9)
+        scale = max(math.sqrt(float(np.mean(px * px + py * py))), 0.1)
         sv = np.array([1.0, 1.0, 1.0 / scale])
         hn = hess * np.outer(sv, sv) / max(sum_w, 1e-9)
         evals, evecs = np.linalg.eigh(hn)
     else:
+        scale = 1.0
         evals, evecs = np.zeros(3), np.eye(3)
-    return IcpResult(pose=pose, hessian=hess, information=info, iterations=it,
-                     converged=converged, n_source=n_src, n_inliers=int(n_in), rms=rms,
-                     eigenvalues=evals, eigenvectors=evecs, scale=scale,
-                     sigma=math.sqrt(sigma2))
+    return IcpResult(pose=pose, hessian=hess, sum_weights=sum_w, iterations=iterations,
+                     converged=converged, n_source=n_src, n_inliers=n_in,
+                     rms=math.sqrt(sigma2), eigenvalues=evals, eigenvectors=evecs,
+                     scale=scale, last_step=last_delta)
 
 
 def _compose(a, b) -> np.ndarray:

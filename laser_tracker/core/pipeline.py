@@ -246,13 +246,12 @@ class Detector:
             return det
         motion = geometry.between(prev_pose, pose)
         t1 = time.perf_counter() if times is not None else 0.0
-        changed, static = changed_cells(frame.ij, previous.padded, motion, res,
-                                        self.difference_config)
+        changed = changed_cells(frame.ij, previous.padded, motion, res,
+                                self.difference_config)
         d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:
-            static_xy = frame.points[static] if static.any() else None
-            blobs = segment(d_cells, cells, res, pose, scan.stamp, self.blob_config, static_xy,
+            blobs = segment(d_cells, cells, res, pose, scan.stamp, self.blob_config,
                             frame.points)
             blobs.frame_id = self.frame_id
         else:
