@@ -433,3 +433,20 @@ def blobs_from_marker_array(msg):
     return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
                  cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
                  structure=arr[:, 4].copy(), frame_id=frame_id)
+
+
+# ----------------------------------------------------------------------------------- tracks
+
+
+def hypotheses_to_objects(hypotheses, confirmed_only: bool = True) -> list[MovingObject]:
+    """``core.hypotheses.HypothesisArrays`` -> MovingObjects for the ``tracks`` schema."""
+    keep = hypotheses.confirmed if confirmed_only else np.ones(len(hypotheses.weight), bool)
+    ids, pos, vel = hypotheses.track_id[keep], hypotheses.position[keep], \
+        hypotheses.velocity[keep]
+    weight, samples, confirmed = hypotheses.weight[keep], hypotheses.samples[keep], \
+        hypotheses.confirmed[keep]
+    return [MovingObject(int(ids[i]), float(pos[i, 0]), float(pos[i, 1]), float(vel[i, 0]),
+                         float(vel[i, 1]), {'weight': round(float(weight[i]), 2),
+                                            'confirmed': bool(confirmed[i]),
+                                            'samples': int(samples[i])})
+            for i in range(ids.size)]

@@ -167,11 +167,18 @@ class GridBuilder:
         self._which = 0
         self._free_at_cell = np.empty(m * m, np.float32)
         self._ext = np.empty(0, np.float32)
+        self._table_key = None
+        self._table: RayTable | None = None
 
     def table(self, scan: Scan) -> RayTable:
-        c = self.config
-        return ray_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams,
-                         self.cells, float(c.resolution), float(c.free_margin))
+        key = (scan.angle_min, scan.angle_increment, scan.n_beams)
+        if key != self._table_key:
+            c = self.config
+            self._table = ray_table(float(scan.angle_min), float(scan.angle_increment),
+                                    scan.n_beams, self.cells, float(c.resolution),
+                                    float(c.free_margin))
+            self._table_key = key
+        return self._table
 
     def build(self, scan: Scan) -> GridFrame:
         c = self.config
@@ -192,11 +199,14 @@ class GridBuilder:
         fr[~valid] = 0.0
         fr[no_return] = limit
         if c.free_erosion:
-            fr[:] = ndimage.minimum_filter1d(fr, 2 * c.free_erosion + 1, mode='nearest')
+            raw = fr.copy()
+            for j in range(1, min(c.free_erosion, beams - 1) + 1):
+                np.minimum(fr[j:], raw[:-j], out=fr[j:])
+                np.minimum(fr[:-j], raw[j:], out=fr[:-j])
         ext[beams] = -1.0   # "no beam": never free
         padded = self._buffers[self._which]
         self._which ^= 1
-        np.take(ext, table.beam, out=self._free_at_cell)
+        np.take(ext, table.beam, out=self._free_at_cell, mode='wrap')  # indices are valid
         np.less(table.reach, self._free_at_cell, out=padded.reshape(-1).view(np.bool_))
         # End points -> OCCUPIED cells.
         _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)

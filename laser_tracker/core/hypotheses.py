@@ -221,13 +221,11 @@ class Tracker:
         """Usable blobs (finite, near the scanner, at most max_blobs): positions and mask."""
         c = self.config
         xy = np.asarray(blobs.xy, dtype=float).reshape(-1, 2)
-        if xy.shape[0] == 0:
-            return xy, np.zeros(0, bool)
-        origin = np.asarray(blobs.origin, dtype=float)[:2]
-        ok = np.isfinite(xy).all(axis=1)
-        if np.isfinite(origin).all():
-            with np.errstate(invalid='ignore'):
-                ok &= ((xy - origin) ** 2).sum(axis=1) <= c.max_blob_range ** 2
+        d = xy - np.asarray(blobs.origin, dtype=float)[:2]
+        with np.errstate(invalid='ignore'):
+            ok = (d * d).sum(axis=1) <= c.max_blob_range ** 2   # NaN anywhere -> False
+        if ok.all() and xy.shape[0] <= c.max_blobs:
+            return xy, ok
         if not ok.all():
             log.warning('t=%.3f: dropped %d blob(s) that are not finite or further than '
                         '%.1f m from the scanner', blobs.stamp, int((~ok).sum()),
@@ -235,13 +233,14 @@ class Tracker:
             self.stats['blobs_dropped'] += int((~ok).sum())
         if ok.sum() > c.max_blobs:
             kept = np.flatnonzero(ok)
-            cells = np.asarray(blobs.cells)[kept] if len(blobs.cells) == len(ok) else None
-            order = np.argsort(-cells, kind='stable') if cells is not None else \
+            cells = np.asarray(blobs.cells).reshape(-1)
+            order = np.argsort(-cells[kept], kind='stable') if cells.size == ok.size else \
                 np.arange(kept.size)
             ok = np.zeros_like(ok)
             ok[kept[order[:c.max_blobs]]] = True
             log.warning('t=%.3f: %d blobs, only the %d largest are tracked (max_blobs)',
                         blobs.stamp, kept.size, c.max_blobs)
+            self.stats['blobs_dropped'] += int(kept.size - c.max_blobs)
         return xy[ok], ok
 
     # ------------------------------------------------------------------------ the frame
@@ -433,9 +432,9 @@ class Tracker:
         dp = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=2)
         dv = ((vel[:, None, :] - vel[None, :, :]) ** 2).sum(axis=2)
         close = (dp <= c.merge_distance ** 2) & (dv <= c.merge_speed ** 2)
-        a, b = np.nonzero(np.triu(close, 1))
-        if a.size == 0:
+        if np.count_nonzero(close) == k:          # only the diagonal: nothing to merge
             return hyp, was_confirmed
+        a, b = np.nonzero(np.triu(close, 1))
         group = _components(k, a, b)
         # State: the best-supported member (supported now, then weight, then samples).
         state_key = np.lexsort((-data[:, _SAMPLES], -data[:, _WEIGHT], -data[:, _SUPPORTED]))

@@ -48,12 +48,12 @@ class KalmanConfig:
 
 
 def _inv2(s: np.ndarray) -> np.ndarray:
-    """Inverse of stacked 2 x 2 matrices (k, 2, 2)."""
-    a, b, c, d = s[:, 0, 0], s[:, 0, 1], s[:, 1, 0], s[:, 1, 1]
-    det = a * d - b * c
-    out = np.empty_like(s)
-    out[:, 0, 0], out[:, 0, 1] = d / det, -b / det
-    out[:, 1, 0], out[:, 1, 1] = -c / det, a / det
+    """Inverse of stacked 2 x 2 matrices (k, 2, 2): the adjugate over the determinant."""
+    out = s[:, ::-1, ::-1].copy()            # [[d, c], [b, a]]
+    out[:, 0, 1] *= -1.0
+    out[:, 1, 0] *= -1.0                     # [[d, -c], [-b, a]]
+    out = out.transpose(0, 2, 1)             # [[d, -b], [-c, a]]
+    out /= (s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0])[:, None, None]
     return out
 
 
@@ -66,8 +66,8 @@ def update_velocity(x_pred: np.ndarray, P_pred: np.ndarray, z: np.ndarray,
                     r: float) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 13, 11, 12 with H = I (stacked): gain, state and covariance."""
     K = P_pred @ _inv2(P_pred + r * np.eye(2))
-    x = x_pred + np.einsum('kij,kj->ki', K, z - x_pred)
-    P = (np.eye(2) - K) @ P_pred
+    x = x_pred + (K @ (z - x_pred)[:, :, None])[:, :, 0]
+    P = P_pred - K @ P_pred                  # (I - K) P-
     return x, P
 
 
@@ -95,7 +95,7 @@ def cv_update(x: np.ndarray, P: np.ndarray, z: np.ndarray,
     """Position measurement update, H = [I 0], R = r I (stacked)."""
     S = P[:, :2, :2] + r * np.eye(2)
     K = P[:, :, :2] @ _inv2(S)                       # (k, 4, 2)
-    x = x + np.einsum('kij,kj->ki', K, z - x[:, :2])
+    x = x + (K @ (z - x[:, :2])[:, :, None])[:, :, 0]
     P = P - K @ P[:, :2, :]
     return x, P
 

@@ -1,0 +1,63 @@
+"""Node ``detection``: occupancy grid, difference map (Eq. 1) and 4-connected blobs.
+
+Subscribes ``scan`` (sensor_msgs/LaserScan) and ``ego_motion`` (nav_msgs/Odometry, the
+scanner pose per scan from the ``ego_motion`` node), pairs them by identical stamps, and
+publishes ``blobs`` (visualization_msgs/MarkerArray, schema in ``core/pipeline.py`` and
+README.md): the moving-object candidates of each scan in the odometry frame.
+"""
+from __future__ import annotations
+
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import LaserScan
+from visualization_msgs.msg import MarkerArray
+
+from laser_tracker.conversions import (blobs_to_marker_array, odometry_from_msg, ros_factory,
+                                       scan_from_msg, sec_to_ns)
+from laser_tracker.core.pipeline import Detector
+from laser_tracker.core.scan import ScanError
+from laser_tracker.nodes import common
+
+
+class DetectionNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('detection', **kwargs)
+        sections = common.declare_pipeline_sections(self, 'detection')
+        self.detector = Detector(sections['grid'], sections['difference'], sections['blobs'])
+        self.factory = ros_factory()
+        self.last_stamp: float | None = None
+        self.pairer = common.StampPairer(self.on_pair)
+        self.blobs_pub = self.create_publisher(MarkerArray, 'blobs', 10)
+        self.create_subscription(LaserScan, 'scan', self.on_scan, qos_profile_sensor_data)
+        self.create_subscription(Odometry, 'ego_motion', self.on_pose, qos_profile_sensor_data)
+
+    def on_scan(self, msg: LaserScan) -> None:
+        try:
+            scan = scan_from_msg(msg)
+        except ScanError as exc:
+            self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
+            return
+        self.pairer.add_left(sec_to_ns(scan.stamp), scan)
+
+    def on_pose(self, msg: Odometry) -> None:
+        pose = odometry_from_msg(msg)
+        self.pairer.add_right(sec_to_ns(pose.stamp), pose)
+
+    def on_pair(self, scan, pose) -> None:
+        if self.last_stamp is not None and scan.stamp <= self.last_stamp:
+            self.get_logger().warning(f'time went backwards ({self.last_stamp:.3f} -> '
+                                      f'{scan.stamp:.3f} s): detection restarts')
+            self.detector.reset()
+        self.last_stamp = scan.stamp
+        self.detector.frame_id = pose.frame_id or self.detector.frame_id
+        detection = self.detector.detect(scan, pose.pose)
+        self.blobs_pub.publish(blobs_to_marker_array(self.factory, detection.blobs))
+
+
+def main(args=None) -> None:
+    common.run(DetectionNode, args)
+
+
+if __name__ == '__main__':
+    main()

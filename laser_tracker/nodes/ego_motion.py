@@ -1,0 +1,81 @@
+"""Node ``ego_motion``: the scanner's motion from odometry plus ICP scan matching.
+
+Subscribes ``scan`` (sensor_msgs/LaserScan) and ``odom`` (nav_msgs/Odometry), both on the
+sensor-data QoS. Publishes ``ego_motion`` (nav_msgs/Odometry): for every scan that yields a
+pose, the scanner pose in the odometry frame stamped with the scan's stamp (child frame = the
+scan's frame). A scan that yields no pose is skipped with a logged reason.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import LaserScan
+
+from laser_tracker.config import param
+from laser_tracker.conversions import (PlanarOdometry, odometry_from_msg, odometry_to_msg,
+                                       ros_factory, scan_from_msg)
+from laser_tracker.core.pipeline import EgoMotionEstimator
+from laser_tracker.core.scan import ScanError
+from laser_tracker.nodes import common
+from laser_tracker.nodes.params import declare_section
+
+
+@dataclass(frozen=True)
+class FrameConfig:
+    odom_frame: str = param('odom', 'Frame of the published poses (the odometry frame).')
+
+
+class EgoMotionNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('ego_motion', **kwargs)
+        self.frames = declare_section(self, FrameConfig, '')
+        self.section = common.declare_pipeline_sections(self, 'ego_motion')['ego_motion']
+        self.estimator = EgoMotionEstimator(self.section)
+        self.factory = ros_factory()
+        self.last_stamp: float | None = None
+        self.pose_pub = self.create_publisher(Odometry, 'ego_motion', qos_profile_sensor_data)
+        # Odometry comes in bursts at a higher rate than scans: a deeper best-effort queue.
+        odom_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.create_subscription(Odometry, 'odom', self.on_odom, odom_qos)
+        self.create_subscription(LaserScan, 'scan', self.on_scan, qos_profile_sensor_data)
+
+    def on_odom(self, msg: Odometry) -> None:
+        odo = odometry_from_msg(msg)
+        pose = odo.pose
+        if not (np.isfinite(pose).all() and np.isfinite(odo.stamp)):
+            self.get_logger().warning('non-finite odometry skipped', throttle_duration_sec=5.0)
+            return
+        self.estimator.add_odometry(odo.stamp, pose)
+
+    def on_scan(self, msg: LaserScan) -> None:
+        try:
+            scan = scan_from_msg(msg)
+        except ScanError as exc:
+            self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
+            return
+        if self.last_stamp is not None and scan.stamp < self.last_stamp:
+            self.get_logger().warning(f'time went backwards ({self.last_stamp:.3f} -> '
+                                      f'{scan.stamp:.3f} s): ego-motion restarts')
+            self.estimator = EgoMotionEstimator(self.section)
+        self.last_stamp = scan.stamp
+        est = self.estimator.update(scan)
+        pose = np.asarray(est.pose, dtype=float)
+        if not np.isfinite(pose).all():
+            self.get_logger().warning(f'no pose for the scan at {scan.stamp:.3f} s '
+                                      f'({est.source})', throttle_duration_sec=5.0)
+            return
+        odom = PlanarOdometry(stamp=scan.stamp, x=pose[0], y=pose[1], theta=pose[2],
+                              frame_id=self.frames.odom_frame, child_frame_id=scan.frame_id)
+        self.pose_pub.publish(odometry_to_msg(self.factory, odom))
+
+
+def main(args=None) -> None:
+    common.run(EgoMotionNode, args)
+
+
+if __name__ == '__main__':
+    main()
