@@ -84,6 +84,7 @@ def test_false_track_of_three_frames_is_one_false_detection_of_length_three():
     s = score(TruthTable.from_frames(frames_of(50, objs)),
               TrackTable.from_rows(perfect_rows(objs) + ghost))
     assert [(f.track_id, f.frames) for f in s.false_detections] == [(7, 3)]
+    assert not s.false_detections[0].after_match
     assert s.false_detections[0].start == pytest.approx(10 * DT)
     assert s.clear_mot['detectable']['num_false_positives'] == 3
     # two separate runs of one track are two false detections
@@ -91,6 +92,19 @@ def test_false_track_of_three_frames_is_one_false_detection_of_length_three():
     s2 = score(TruthTable.from_frames(frames_of(50, objs)),
                TrackTable.from_rows(perfect_rows(objs) + ghost2))
     assert sorted(f.frames for f in s2.false_detections) == [1, 2]
+
+
+def test_a_track_overshooting_after_its_object_stopped_is_flagged():
+    objs = walker(20)
+    stand = [((20 + k) * DT, MovingObject(1, objs[-1][1].x, 1.0, 0.0, 0.0, {}))
+             for k in range(5)]
+    # the track coasts on at 1 m/s for 5 scans after the object stopped: 0.2 .. 1.0 m away
+    coast = [((20 + k) * DT, 100, objs[-1][1].x + 0.2 * (k + 1), 1.0, 1.0, 0.0, 60.0, True)
+             for k in range(5)]
+    s = score(TruthTable.from_frames(frames_of(25, objs + stand)),
+              TrackTable.from_rows(perfect_rows(objs) + coast))
+    assert [(f.frames, f.after_match) for f in s.false_detections] == [(2, True)]
+    assert s.as_dict()['false_detections_after_match'] == 1
 
 
 def test_unconfirmed_hypotheses_are_not_scored_unless_asked():
@@ -150,6 +164,20 @@ def test_clearly_incorrect_velocity():
     s = score(TruthTable.from_frames(frames_of(50, objs)),
               TrackTable.from_rows(reverse + too_fast + fine))
     assert s.incorrect_tracks == [3, 4] and s.incorrect_rows == 20
+    assert s.incorrect_steady == [3, 4]
+
+
+def test_velocity_lag_just_after_a_reversal_is_counted_apart():
+    east = walker(15, start=(0.0, 0.0), vel=(1.0, 0.0))
+    west = [((15 + k) * DT, MovingObject(1, 3.0 - 0.2 * k, 0.0, -1.0, 0.0, {}))
+            for k in range(15)]
+    # the track keeps the old velocity for one scan after the object turned back
+    rows = perfect_rows(east) + [(s, 100, o.x, o.y, 1.0 if k == 0 else o.vx, 0.0, 80.0, True)
+                                 for k, (s, o) in enumerate(west)]
+    s = score(TruthTable.from_frames(frames_of(30, east + west)), TrackTable.from_rows(rows))
+    assert s.incorrect_tracks == [100] and s.incorrect_rows == 1
+    assert s.incorrect_steady == []
+    assert s.incorrect_list[0]['since_velocity_change_s'] == pytest.approx(0.0)
 
 
 def _drift(k):
@@ -188,12 +216,15 @@ def test_unlabelled_estimate():
     walk = [(k * 0.1, 1, 0.1 * k, 0.0, 1.0, 0.0, 80.0, k >= 4) for k in range(20)]
     still = [(k * 0.1, 2, 3.0, 3.0 + 0.01 * k, 0.2, 0.0, 80.0, k >= 4) for k in range(10)]
     never = [(k * 0.1, 3, 5.0, 5.0, 0.0, 0.0, 10.0, False) for k in range(3)]
-    r = score_unlabelled(TrackTable.from_rows(walk + still + never), np.arange(600) * 0.1)
+    jumpy = [(k * 0.1, 4, 8.0 + 0.2 * k, 0.0, 0.1, 0.0, 80.0, True) for k in range(5)]
+    r = score_unlabelled(TrackTable.from_rows(walk + still + never + jumpy),
+                         np.arange(600) * 0.1)
     assert r['duration_s'] == pytest.approx(60.0)
-    assert r['confirmed_tracks'] == 2 and r['confirmed_per_minute'] == pytest.approx(2.0)
-    assert r['estimated_false'] == 1 and r['estimated_false_per_minute'] == pytest.approx(1.0)
-    assert r['hypotheses'] == 3
-    assert {t['track']: t['frames'] for t in r['tracks']} == {1: 16, 2: 6}
+    assert r['confirmed_tracks'] == 3 and r['confirmed_per_minute'] == pytest.approx(3.0)
+    assert r['estimated_false'] == 2 and r['estimated_false_per_minute'] == pytest.approx(2.0)
+    assert r['hypotheses'] == 4
+    assert {t['track']: t['frames'] for t in r['tracks']} == {1: 16, 2: 6, 4: 5}
+    assert {t['track'] for t in r['tracks'] if t['estimated_false']} == {2, 4}
 
 
 # ------------------------------------------------------------------------- command line
@@ -272,6 +303,15 @@ def test_evaluate_command_end_to_end_on_a_small_bag(tmp_path, capsys):
     assert run_cli('evaluate', replay, bag, '--all', '--no-figures', '--json', out_json) == 0
     again = json.loads(out_json.read_text())
     assert again['hypotheses_made'] == 2 and again['clear_mot']['detectable']['num_misses'] == 0
+
+
+def test_evaluate_refuses_a_replay_of_another_recording(tmp_path, capsys):
+    bag = tmp_path / 'gt_bag'
+    write_bag(bag)
+    replay = tmp_path / 'replay'
+    write_replay(replay, [(100.0 + k * DT, 0, 0, 0) for k in range(5)], [])
+    assert run_cli('evaluate', replay, bag) == 2
+    assert 'was it replayed from that recording' in capsys.readouterr().err
 
 
 def test_evaluate_refuses_a_bag_without_ground_truth(tmp_path, capsys):

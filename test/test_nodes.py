@@ -182,3 +182,20 @@ def test_bad_scans_are_skipped_and_tracking_continues(ros_context):
         assert len(graph.tracks) == 3               # the malformed scan produced nothing
     finally:
         graph.close()
+
+
+def test_out_of_range_parameter_is_refused_with_its_name(ros_context):
+    from rclpy.exceptions import InvalidParameterValueException
+    from rclpy.parameter import Parameter
+
+    from laser_tracker.nodes.tracking import TrackingNode
+
+    with pytest.raises(InvalidParameterValueException, match='hypotheses.w_inc'):
+        TrackingNode(context=ros_context,
+                     parameter_overrides=[Parameter('hypotheses.w_inc', value=-5.0)])
+    node = TrackingNode(context=ros_context,
+                        parameter_overrides=[Parameter('hypotheses.w_inc', value=40.0)])
+    try:
+        assert node.tracker.config.w_inc == 40.0
+    finally:
+        node.destroy_node()

@@ -57,11 +57,13 @@ class BlobConfig:
     surface_gap: float = param(0.15, "Consecutive scan points further apart than this (m) "
                                "belong to different surfaces.", min=0.01, max=5.0)
     surface_radius: float = param(0.5, 'A surface extends at most this far (m) from the '
-                                  'changed cells it is found from.', min=0.05, max=5.0)
-    structure_radius: float = param(0.4, "The points of a blob's surface within this distance "
-                                    '(m) of its changed cells are the structure it lies on.',
-                                    min=0.0, max=5.0)
-    structure_min_points: int = param(6, 'Fewest such points that can form a wall.', min=3,
+                                  'changed cells it is found from (for the position and the '
+                                  'structure test).', min=0.05, max=5.0)
+    centre_offset: float = param(0.3, "Move a blob away from the scanner by this fraction of "
+                                 "its surface's width: the centre of a roughly round object "
+                                 'lies about half its width behind the surface the laser sees. '
+                                 '0 = the surface itself (paper).', min=0.0, max=2.0)
+    structure_min_points: int = param(6, 'Fewest surface points that can form a wall.', min=3,
                                       max=1000)
     structure_elongation: float = param(3.0, 'Ratio of the principal standard deviations of '
                                         'those points above which they form a line (a wall) '
@@ -217,53 +219,52 @@ class _Surfaces:
 
     def measure(self, centroids: np.ndarray, config: BlobConfig,
                 resolution: float) -> tuple[np.ndarray, np.ndarray]:
-        """Per blob: the centroid of its surface within ``surface_radius`` (its own centroid
-        when it has no surface) and the direction of the wall it lies on (NaN: none).
+        """Per blob: the position from its surface and the direction of the wall it lies on.
 
-        A blob lies on a wall when the points of its surface within ``structure_radius``
-        number at least ``structure_min_points``, their principal standard deviations differ
-        by at least ``structure_elongation`` (a line, not a clump such as a leg) and the line
-        runs past the blob on both sides: the blob is nearer the middle of those points than
-        one standard deviation along the line. That tells a misregistered stretch of wall,
-        which continues past its noise blob, from the leading edge of an object moving along
-        its own side (a robot's flank), whose surface lies behind the blob only (a uniform
-        stretch behind a point has its mean sqrt(3) standard deviations away).
+        The surface of a blob is the points of its surface run within ``surface_radius`` of
+        its changed cells. Position: their centroid (the blob's own centroid when it has no
+        surface), moved away from the scanner by ``centre_offset`` times the surface's width
+        (the centre of a roughly round object lies behind its visible surface).
+
+        Wall: the surface has at least ``structure_min_points`` points, their principal
+        standard deviations differ by at least ``structure_elongation`` (a line, not a clump
+        such as a leg) and the line runs past the blob on both sides: the blob is nearer the
+        middle of those points than one standard deviation along the line. That tells a
+        misregistered stretch of wall, which continues past its noise blob, from the leading
+        edge of an object moving along its own side (a robot's flank), whose surface lies
+        behind the blob only (a uniform stretch behind a point has its mean sqrt(3) standard
+        deviations away). NaN where there is no wall; else radians mod pi.
         """
         p = self.points
-        same = self.id[None, :] == self.sid[:, None]
-        same &= (self.sid >= 0)[:, None]
-        r_pos, r_wall = config.surface_radius, config.structure_radius
-        w = (same & (self.d2 <= max(r_pos, r_wall) ** 2)).astype(np.float64)
-        if r_pos == r_wall:
-            w_pos = w_wall = w
-        else:
-            w_pos = w * (self.d2 <= r_pos * r_pos)
-            w_wall = w * (self.d2 <= r_wall * r_wall)
-        count = w_pos.sum(axis=1)
-        out = centroids.copy()
-        use = count > 0
-        if use.any():
-            out[use] = (w_pos[use] @ p) / count[use, None]
-        structure = np.full(centroids.shape[0], np.nan)
-        cw = w_wall.sum(axis=1)
-        ok = cw >= config.structure_min_points
-        if not ok.any():
-            return out, structure
-        wk, cw, c = w_wall[ok], cw[ok], centroids[ok]
-        m = (wk @ np.column_stack((p, p * p, p[:, 0] * p[:, 1]))) / cw[:, None]
+        w = (self.id[None, :] == self.sid[:, None]) & (self.sid >= 0)[:, None] & \
+            (self.d2 <= config.surface_radius ** 2)
+        feats = np.empty((p.shape[0], 5))
+        feats[:, :2] = p
+        np.multiply(p, p, out=feats[:, 2:4])
+        np.multiply(p[:, 0], p[:, 1], out=feats[:, 4])
+        count = w.sum(axis=1)
+        m = (w.astype(np.float64) @ feats) / np.maximum(count, 1)[:, None]
         mx, my = m[:, 0], m[:, 1]
-        q = resolution * resolution / 12.0   # quantisation floor
-        cxx = m[:, 2] - mx * mx + q
-        cyy = m[:, 3] - my * my + q
+        cxx = m[:, 2] - mx * mx
+        cyy = m[:, 3] - my * my
         cxy = m[:, 4] - mx * my
         half_tr = 0.5 * (cxx + cyy)
         root = np.sqrt(np.maximum(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
-        l1, l2 = half_tr + root, np.maximum(half_tr - root, 1e-12)
+        l1 = half_tr + root
+        has = count > 0
+        out = np.where(has[:, None], m[:, :2], centroids)
+        if config.centre_offset > 0 and has.any():
+            width = np.sqrt(12.0 * np.maximum(l1, 0.0))      # a uniform stretch's length
+            rng = np.maximum(np.hypot(mx, my), 1e-9)
+            shift = np.where(has, config.centre_offset * width / rng, 0.0)
+            out = out + out * shift[:, None]
+        q = resolution * resolution / 12.0                    # quantisation floor
+        l1q, l2q = l1 + q, np.maximum(half_tr - root + q, 1e-12)
         angle = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
-        offset = (mx - c[:, 0]) * np.cos(angle) + (my - c[:, 1]) * np.sin(angle)
-        wall = (l1 >= config.structure_elongation ** 2 * l2) & (offset * offset < l1)
-        structure[ok] = np.where(wall, angle, np.nan)
-        return out, structure
+        offset = (mx - centroids[:, 0]) * np.cos(angle) + (my - centroids[:, 1]) * np.sin(angle)
+        wall = (count >= config.structure_min_points) & \
+            (l1q >= config.structure_elongation ** 2 * l2q) & (offset * offset < l1q)
+        return out, np.where(wall, angle, np.nan)
 
 
 def surface_centroids(centroids: np.ndarray, points: np.ndarray, config: BlobConfig,

@@ -63,7 +63,7 @@ class GridConfig:
     no_return_free: float = param(8.0, 'Distance (m) freed along a beam that returned nothing '
                                   '(inf or >= range_max); 0 = such beams free nothing.',
                                   min=0.0, max=100.0)
-    free_erosion: int = param(1, 'Beams on each side whose free range also bounds a beam\'s '
+    free_erosion: int = param(0, 'Beams on each side whose free range also bounds a beam\'s '
                               '(a minimum filter along the scan): 0 = each beam alone; 1 '
                               'keeps cells at grazing walls from being FREE in one scan and '
                               'OCCUPIED in the next.', min=0, max=10)
@@ -130,8 +130,8 @@ def cell_centres(cells: int, resolution: float, flat: np.ndarray) -> np.ndarray:
 
 @dataclass
 class GridFrame:
-    """One scan's grid and what the later stages need from it (valid until the next build
-    but one: two buffers alternate, so the previous frame survives one more build).
+    """One scan's grid and what the later stages need from it (valid for ``keep - 1`` more
+    builds of its :class:`GridBuilder`: its buffers rotate).
 
     ``padded`` is the grid with a ``PAD``-cell UNKNOWN border, ``grid`` its interior view
     (``grid[ix, iy]``); ``points`` the end points inside the grid in beam order (scanner
@@ -144,6 +144,7 @@ class GridFrame:
     points: np.ndarray
     ij: np.ndarray
     flat: np.ndarray
+    index: int = 0          # which buffer of its builder's ``stack``
 
     @property
     def grid(self) -> np.ndarray:
@@ -159,11 +160,13 @@ class GridBuilder:
     scan). Flat indices into the padded buffer let the difference stage read a cell and its
     neighbours with one gather and no bounds checks (the border is UNKNOWN)."""
 
-    def __init__(self, config: GridConfig):
+    def __init__(self, config: GridConfig, keep: int = 2):
+        """``keep``: how many grids stay valid (the current one and ``keep - 1`` before it)."""
         self.config = config
         self.cells = config.cells
         m = self.cells + 2 * PAD
-        self._buffers = [np.zeros((m, m), np.uint8) for _ in range(2)]
+        # One array holds every buffer, so that several grids can be read with one gather.
+        self.stack = np.zeros((max(2, keep), m, m), np.uint8)
         self._which = 0
         self._free_at_cell = np.empty(m * m, np.float32)
         self._ext = np.empty(0, np.float32)
@@ -204,8 +207,9 @@ class GridBuilder:
                 np.minimum(fr[j:], raw[:-j], out=fr[j:])
                 np.minimum(fr[:-j], raw[j:], out=fr[:-j])
         ext[beams] = -1.0   # "no beam": never free
-        padded = self._buffers[self._which]
-        self._which ^= 1
+        index = self._which
+        padded = self.stack[index]
+        self._which = (self._which + 1) % self.stack.shape[0]
         np.take(ext, table.beam, out=self._free_at_cell, mode='wrap')  # indices are valid
         np.less(table.reach, self._free_at_cell, out=padded.reshape(-1).view(np.bool_))
         # End points -> OCCUPIED cells.
@@ -222,7 +226,7 @@ class GridBuilder:
         m = n + 2 * PAD
         padded.reshape(-1)[(ij[:, 0] * m + ij[:, 1] + PAD * (m + 1)).astype(np.intp)] = \
             OCCUPIED
-        return GridFrame(padded=padded, points=pts, ij=ij, flat=flat)
+        return GridFrame(padded=padded, points=pts, ij=ij, flat=flat, index=index)
 
 
 def build_grid(scan: Scan, config: GridConfig) -> np.ndarray:
@@ -254,7 +258,7 @@ def transform_grid(previous: np.ndarray, motion, resolution: float) -> np.ndarra
     """
     cells = previous.shape[0]
     rot, offset = _index_map(motion, cells, resolution)
-    return ndimage.affine_transform(previous, rot, offset=offset, order=0, mode='constant',
+    return ndimage.affine_transform(previous, rot, offset=offset, order=0, mode='grid-constant',
                                     cval=int(UNKNOWN), output=np.uint8)
 
 
@@ -284,6 +288,29 @@ def _shift_offsets(m: int) -> np.ndarray:
     out = _SHIFTS[:, 0] * m + _SHIFTS[:, 1]
     out.setflags(write=False)
     return out
+
+
+def lookup_stack(stack: np.ndarray, indices, motions, resolution: float,
+                 ij: np.ndarray) -> np.ndarray:
+    """Several grids at once: the value of grid ``stack[indices[k]]`` (padded) brought into the
+    current frame by ``motions[k]``, at the current cells ``ij`` (c, 2) -> (K, c). One gather
+    for all of them (the nearest-cell mapping of :func:`lookup_padded`)."""
+    K, m = len(indices), stack.shape[1]
+    cells = m - 2 * PAD
+    centre = cells / 2.0 - 0.5
+    motions = np.asarray(motions, dtype=float).reshape(K, 3)
+    c, s = np.cos(motions[:, 2]), np.sin(motions[:, 2])
+    rot = np.empty((K, 2, 2))
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
+    offset = centre - np.einsum('kij,j->ki', rot, np.array([centre, centre])) \
+        + motions[:, :2] / resolution
+    uv = ij[None, :, :] @ rot.transpose(0, 2, 1)
+    uv += (offset + 0.5)[:, None, :]
+    np.floor(uv, out=uv)
+    np.clip(uv, -1, cells, out=uv)
+    base = (np.asarray(indices) * (m * m) + PAD * (m + 1)).astype(np.float64)
+    p = (uv[..., 0] * m + uv[..., 1] + base[:, None]).astype(np.intp)
+    return stack.reshape(-1)[p]
 
 
 def lookup_previous(previous: np.ndarray, motion, resolution: float, flat: np.ndarray,

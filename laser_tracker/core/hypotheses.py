@@ -77,7 +77,7 @@ class HypothesisConfig:
                          max=100.0)
     gate: float = param(0.7, 'Radius (m) around a prediction in which a blob supports the '
                         'hypothesis (the search box of Fig. 6).', min=0.01, max=10.0)
-    coast_penalty: float = param(30.0, 'Weight lost per frame without a supporting blob.',
+    coast_penalty: float = param(40.0, 'Weight lost per frame without a supporting blob.',
                                  min=0.0, max=100.0)
     remove_below: float = param(10.0, 'A hypothesis whose weight falls below this is removed.',
                                 min=0.0, max=100.0)
@@ -89,10 +89,14 @@ class HypothesisConfig:
                                   'and the wall test does not apply.', min=0.0, max=10.0)
     confirm_samples: int = param(4, 'm: samples before a hypothesis is reported as a moving '
                                  'object (paper: 4).', min=1, max=1000)
-    confirm_min_speed: float = param(0.2, 'A hypothesis is confirmed only while its speed is at '
+    confirm_min_speed: float = param(0.0, 'A hypothesis is confirmed only while its speed is at '
                                      'least this (m/s): a flicker in place (a thin chair leg '
                                      'seen in one scan and missed in the next) is not a '
                                      'moving object. 0 = paper.', min=0.0, max=10.0)
+    confirm_min_travel: float = param(0.0, 'A hypothesis is confirmed only once it is this far '
+                                      '(m) from where it was created: a moving object goes '
+                                      'somewhere; a thin static object flickering in and out '
+                                      'of the scans does not. 0 = paper.', min=0.0, max=100.0)
     merge_distance: float = param(0.3, 'Hypotheses closer than this (m) ...', min=0.0,
                                   max=10.0)
     merge_speed: float = param(0.5, '... whose velocities differ by less than this (m/s) are '
@@ -109,8 +113,8 @@ class HypothesisConfig:
 
 
 _ID, _T, _WEIGHT, _SAMPLES, _CONFIRMED, _SUPPORTED, _BORN = 0, 5, 8, 9, 10, 11, 12
-_STATE, _VEL, _POS = slice(1, 5), slice(3, 5), slice(6, 8)
-_P0 = 13
+_STATE, _VEL, _POS, _START = slice(1, 5), slice(3, 5), slice(6, 8), slice(13, 15)
+_P0 = 15
 
 
 class HypothesisArrays:
@@ -122,7 +126,8 @@ class HypothesisArrays:
     ``t_state`` (the stamp of the last supporting blob, ``kalman.TrackFilter``), ``P``
     (k, d, d), ``position`` (k, 2) the estimate at the current frame, ``velocity`` (k, 2),
     ``weight`` 0..100, ``samples``, ``confirmed``, ``supported`` (a blob supported it this
-    frame) and ``born`` (creation stamp).
+    frame), ``born`` (creation stamp) and ``start`` (k, 2) where it was created (the later
+    blob of its creation pair).
     """
 
     __slots__ = ('data', 'dim')
@@ -168,6 +173,9 @@ class HypothesisArrays:
                          lambda self, v: self.data.__setitem__((slice(None), _SUPPORTED), v))
     born = property(lambda self: self.data[:, _BORN],
                     lambda self, v: self.data.__setitem__((slice(None), _BORN), v))
+
+    start = property(lambda self: self.data[:, _START],
+                     lambda self, v: self.data.__setitem__((slice(None), _START), v))
 
     @property
     def P(self) -> np.ndarray:
@@ -339,6 +347,8 @@ class Tracker:
         ready = hyp.samples >= c.confirm_samples
         if c.confirm_min_speed > 0:
             ready &= (hyp.velocity ** 2).sum(axis=1) >= c.confirm_min_speed ** 2
+        if c.confirm_min_travel > 0:
+            ready &= ((hyp.position - hyp.start) ** 2).sum(axis=1) >= c.confirm_min_travel ** 2
         hyp.confirmed = hyp.confirmed | ready
         newly = np.flatnonzero(hyp.confirmed & ~was_confirmed)
         self.stats['confirmed'] += int(newly.size)
@@ -405,6 +415,7 @@ class Tracker:
         data[:, _SAMPLES] = 1.0
         data[:, _SUPPORTED] = 1.0
         data[:, _BORN] = t
+        data[:, _START] = new_xy
         self.stats['created'] += n
         return out
 
@@ -460,6 +471,7 @@ class Tracker:
         od[:, _CONFIRMED] = np.maximum(data[src, _CONFIRMED], od[:, _CONFIRMED])
         od[:, _SAMPLES] = samples[group[rows]]
         od[:, _BORN] = data[src, _BORN]
+        od[:, _START] = data[src, _START]
         self.stats['merged'] += int(k - rows.size)
         return out, was_confirmed[src]
 

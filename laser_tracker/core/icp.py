@@ -71,6 +71,7 @@ class LocalMap:
         self._dirty = True
         self.points = np.zeros((0, 2))
         self.normals = np.zeros((0, 2))
+        self.data = np.zeros((0, 3))  # nx, ny, n . q per map point
         self.tree: cKDTree | None = None
 
     @property
@@ -101,11 +102,14 @@ class LocalMap:
         if self._scans:
             self.points = np.concatenate([s[0] for s in self._scans])
             self.normals = np.concatenate([s[1] for s in self._scans])
+            self.data = np.column_stack((self.normals, np.einsum('ij,ij->i', self.normals,
+                                                                  self.points)))
             self.tree = cKDTree(self.points, leafsize=16, balanced_tree=False,
                                 compact_nodes=False)
         else:
             self.points = np.zeros((0, 2))
             self.normals = np.zeros((0, 2))
+            self.data = np.zeros((0, 3))
             self.tree = None
         self._dirty = False
 
@@ -118,7 +122,7 @@ class IcpResult:
     hessian: np.ndarray         # (3, 3) J^T W J at the solution (scanner-frame perturbation)
     sum_weights: float          # sum of the robust weights of the final associations
     iterations: int             # Gauss-Newton steps taken
-    converged: bool             # the last step was below 10x the tolerances
+    converged: bool             # the last step was below the convergence limits
     n_source: int
     n_inliers: int              # source points associated within the final distance
     rms: float                  # weighted RMS point-to-line residual (m)
@@ -135,7 +139,9 @@ class IcpResult:
 def align(source: np.ndarray, ref: LocalMap, pose0, distances=(1.0, 0.5, 0.25, 0.1),
           kernel_ratio: float = 0.3, steps_per_association: int = 2,
           final_associations: int = 2, tol_translation: float = 1e-4,
-          tol_rotation: float = 1e-4, damping: float = 1e-6) -> IcpResult:
+          tol_rotation: float = 1e-4, damping: float = 1e-6,
+          converged_translation: float = 0.005,
+          converged_rotation: float = 0.002, coarse_stride: int = 1) -> IcpResult:
     """Align ``source`` points (M, 2, scanner frame) to ``ref`` starting at ``pose0``.
 
     Coarse-to-fine: for each association distance ``d`` in ``distances`` the source points
@@ -145,6 +151,8 @@ def align(source: np.ndarray, ref: LocalMap, pose0, distances=(1.0, 0.5, 0.25, 0
     with those associations (fewer when a step is below the tolerances). The last distance is
     associated ``final_associations`` times. ``damping`` (relative to the Hessian's trace)
     keeps a degenerate problem solvable; the caller decides what a degenerate result means.
+    The result is ``converged`` when the last step is below ``converged_translation`` (m)
+    and ``converged_rotation`` (rad): the estimate no longer moves.
 
     The normalised Hessian ``S H S / sum(w)`` with ``S = diag(1, 1, 1/L)`` (``L`` the RMS
     range of the matched points) has eigenvalues equal to the weighted fraction of points
@@ -153,51 +161,43 @@ def align(source: np.ndarray, ref: LocalMap, pose0, distances=(1.0, 0.5, 0.25, 0
     ref.build()
     x, y, th = (float(v) for v in pose0)
     n_src = source.shape[0]
-    px_all = source[:, 0]
-    py_all = source[:, 1]
-    ref_pts = ref.points
-    ref_nrm = ref.normals
-    n_ref = ref_pts.shape[0]
+    ref_data = ref.data
+    n_ref = ref_data.shape[0]
     tree = ref.tree
     h = np.zeros((3, 3))
     n_in = 0
     iterations = 0
     last = (0.0, 0.0, 0.0)
-    schedule = list(distances[:-1]) + [distances[-1]] * max(1, int(final_associations))
+    if tree is None or n_src == 0:
+        schedule = []
+    else:
+        schedule = list(distances[:-1]) + [distances[-1]] * max(1, int(final_associations))
     steps = max(1, int(steps_per_association))
-    src_xy = np.empty((n_src, 2))
     w = r = None
-    bm = None
-    px = py = None
-    for d in schedule:
+    bm = psel = None
+    n_coarse = len(schedule) - max(1, int(final_associations))
+    for level, d in enumerate(schedule):
         c, s = math.cos(th), math.sin(th)
-        np.multiply(px_all, c, out=src_xy[:, 0])
-        src_xy[:, 0] -= s * py_all
-        src_xy[:, 0] += x
-        np.multiply(px_all, s, out=src_xy[:, 1])
-        src_xy[:, 1] += c * py_all
-        src_xy[:, 1] += y
+        src = source[::coarse_stride] if level < n_coarse else source
+        src_xy = src @ np.array([[c, s], [-s, c]])
+        src_xy += (x, y)
         _, idx = tree.query(src_xy, k=1, distance_upper_bound=d)
         sel = idx < n_ref
-        n_in = int(np.count_nonzero(sel))
+        j = idx[sel]
+        n_in = j.size
         if n_in < 3:
             break
-        j = idx[sel]
-        nrm = ref_nrm[j]
-        px = px_all[sel]
-        py = py_all[sel]
         # Per association, with world normal n, map point q and scan point p (scanner frame):
         # columns u = n . p, v = n x p, nx, ny, n . q. For a pose (c, s, x, y):
         #   residual r = c u + s v + nx x + ny y - n.q
         #   Jacobian (right perturbation) [c nx + s ny, c ny - s nx, c v - s u]
         # so every step is one (M, 5) product plus a 5x5 weighted Gram matrix.
+        psel = src[sel]
+        md = ref_data[j]  # nx, ny, n.q
         bm = np.empty((n_in, 5))
-        np.multiply(nrm[:, 0], px, out=bm[:, 0])
-        bm[:, 0] += nrm[:, 1] * py
-        np.multiply(nrm[:, 1], px, out=bm[:, 1])
-        bm[:, 1] -= nrm[:, 0] * py
-        bm[:, 2:4] = nrm
-        bm[:, 4] = np.einsum('ij,ij->i', nrm, ref_pts[j])
+        bm[:, 2:5] = md
+        np.einsum('ij,ij->i', md[:, :2], psel, out=bm[:, 0])
+        np.einsum('ij,ij->i', md[:, :2], psel @ _PERP, out=bm[:, 1])
         inv_k2 = 1.0 / (kernel_ratio * d) ** 2
         for _ in range(steps):
             c, s = math.cos(th), math.sin(th)
@@ -223,15 +223,15 @@ def align(source: np.ndarray, ref: LocalMap, pose0, distances=(1.0, 0.5, 0.25, 0
             last = delta
             if abs(dx) + abs(dy) < tol_translation and abs(dt) < tol_rotation:
                 break
-    converged = (n_in >= 3 and abs(last[0]) + abs(last[1]) < 10 * tol_translation
-                 and abs(last[2]) < 10 * tol_rotation)
+    converged = (n_in >= 3 and math.hypot(last[0], last[1]) < converged_translation
+                 and abs(last[2]) < converged_rotation)
     if n_in >= 3 and bm is not None:
         c, s = math.cos(th), math.sin(th)
         r = bm @ np.array([c, s, x, y, -1.0])
         w = 1.0 / (1.0 + (r * r) * inv_k2)
         sum_w = float(w.sum())
         rms = math.sqrt(float(w @ (r * r)) / max(sum_w, 1e-12))
-        scale = max(math.sqrt(float(np.mean(px * px + py * py))), 0.1)
+        scale = max(math.sqrt(float(np.einsum('ij,ij->', psel, psel)) / n_in), 0.1)
         sv = np.array([1.0, 1.0, 1.0 / scale])
         evals, evecs = np.linalg.eigh(h * np.outer(sv, sv) / max(sum_w, 1e-12))
     else:
@@ -241,6 +241,9 @@ def align(source: np.ndarray, ref: LocalMap, pose0, distances=(1.0, 0.5, 0.25, 0
                      iterations=iterations, converged=bool(converged), n_source=n_src,
                      n_inliers=n_in, rms=rms, eigenvalues=evals, eigenvectors=evecs,
                      scale=scale, last_step=np.array(last, dtype=float))
+
+
+_PERP = np.array([[0.0, 1.0], [-1.0, 0.0]])  # (px, py) @ _PERP = (-py, px)
 
 
 def _solve3(h, g, damping: float):

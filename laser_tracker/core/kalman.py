@@ -40,7 +40,7 @@ class KalmanConfig:
                      min=0.0, max=100.0)
     r: float = param(0.006, 'Paper mode: measurement noise R = r I (Eq. 15).',
                      min=1e-9, max=100.0)
-    cv_accel_noise: float = param(2.0, 'cv mode: white-acceleration spectral density '
+    cv_accel_noise: float = param(0.5, 'cv mode: white-acceleration spectral density '
                                   '(m^2/s^3) of the process noise.', min=0.0, max=1000.0)
     cv_position_noise: float = param(0.01, 'cv mode: variance (m^2) of a blob centroid as a '
                                      'measurement of the target position.', min=1e-9,

@@ -39,87 +39,28 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from laser_tracker.config import (ConfigError, describe, from_dict, read_ros_yaml, to_dict)
+from laser_tracker.config import ConfigError, describe, from_dict, read_ros_yaml, to_dict
 from laser_tracker.core import geometry
 from laser_tracker.core.blobs import BlobConfig, Blobs, segment
-from laser_tracker.core.difference import DifferenceConfig, changed_cells, difference_map
-from laser_tracker.core.grid import GridBuilder, GridConfig, transform_grid
+from laser_tracker.core.difference import (DifferenceConfig, changed_cells, difference_map,
+                                           not_occupied_before, relative_motion)
+from laser_tracker.core.egomotion import SOURCE_INIT, EgoMotionConfig, EgoMotionEstimator
+from laser_tracker.core.grid import GridBuilder, GridConfig, GridFrame, transform_grid
 from laser_tracker.core.hypotheses import FrameResult, HypothesisArrays, HypothesisConfig, \
     Tracker
 from laser_tracker.core.kalman import KalmanConfig
 from laser_tracker.core.scan import Scan
 
 log = logging.getLogger(__name__)
-
-try:  # the ego-motion estimator (odometry prior + ICP), written alongside this module
-    from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimator
-except ImportError:  # pragma: no cover - stand-in until it exists
-    from laser_tracker.config import param
-
-    @dataclass(frozen=True)
-    class EgoMotionConfig:  # type: ignore[no-redef]
-        """Stand-in ego-motion: odometry interpolated at the scan stamp."""
-
-        mount_x: float = param(0.0, 'Scanner position on the platform, forward (m).',
-                               min=-10.0, max=10.0)
-        mount_y: float = param(0.0, 'Scanner position on the platform, left (m).',
-                               min=-10.0, max=10.0)
-        mount_yaw: float = param(0.0, 'Scanner yaw on the platform (rad).', min=-3.1416,
-                                 max=3.1416)
-
-    @dataclass
-    class _Estimate:
-        stamp: float
-        pose: np.ndarray
-        motion: np.ndarray
-        source: str
-
-    class EgoMotionEstimator:  # type: ignore[no-redef]
-        """Odometry interpolation behind the estimator's interface (no ICP)."""
-
-        def __init__(self, config: EgoMotionConfig | None = None):
-            self.config = config or EgoMotionConfig()
-            self._stamps = np.zeros(512)
-            self._poses = np.zeros((512, 3))
-            self._n = 0
-            self._last: np.ndarray | None = None
-
-        def add_odometry(self, stamp: float, pose) -> None:
-            if self._n and stamp <= self._stamps[self._n - 1]:
-                return
-            if self._n == self._stamps.size:   # keep the last half: memory stays flat
-                half = self._n // 2
-                self._stamps[:half] = self._stamps[half:self._n]
-                self._poses[:half] = self._poses[half:self._n]
-                self._n = half
-            self._stamps[self._n] = stamp
-            self._poses[self._n] = pose
-            self._n += 1
-
-        def update(self, scan: Scan) -> _Estimate:
-            c = self.config
-            if self._n:
-                n = self._n
-                i = int(np.searchsorted(self._stamps[:n], scan.stamp))
-                lo, hi = max(i - 1, 0), min(i + 1, n)
-                base = geometry.interpolate_poses(self._stamps[lo:hi], self._poses[lo:hi],
-                                                  scan.stamp)[0]
-                pose = geometry.compose(base, (c.mount_x, c.mount_y, c.mount_yaw))
-                source = 'odometry'
-            else:
-                pose = self._last if self._last is not None else np.zeros(3)
-                source = 'none'
-            motion = np.zeros(3) if self._last is None else geometry.between(self._last, pose)
-            self._last = np.asarray(pose, dtype=float)
-            return _Estimate(scan.stamp, self._last, motion, source)
 
 
 # ---------------------------------------------------------------------------- config
@@ -222,12 +163,13 @@ class Detector:
         self.difference_config = difference or DifferenceConfig()
         self.blob_config = blobs or BlobConfig()
         self.frame_id = frame_id
-        self.builder = GridBuilder(self.grid_config)
+        self.builder = GridBuilder(self.grid_config, keep=self.difference_config.memory + 2)
         self.reset()
 
     def reset(self) -> None:
-        self.previous: np.ndarray | None = None
+        self.previous: GridFrame | None = None
         self.previous_pose: np.ndarray | None = None
+        self.earlier: deque = deque(maxlen=self.difference_config.memory + 1)
 
     def detect(self, scan: Scan, pose, want_grids: bool = False) -> Detection:
         """Grid of ``scan``, Eq. 1 against the previous grid, blobs (odometry frame)."""
@@ -238,16 +180,24 @@ class Detector:
         t0 = time.perf_counter() if times is not None else 0.0
         frame = self.builder.build(scan)
         previous, prev_pose = self.previous, self.previous_pose
+        if previous is not None and self.difference_config.memory:
+            self.earlier.append((previous.index, prev_pose))
         self.previous, self.previous_pose = frame, pose
         if previous is None:
             det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0)
             if want_grids:
                 det.grid = frame.grid.copy()
             return det
-        motion = geometry.between(prev_pose, pose)
+        motion = relative_motion(prev_pose, pose)
         t1 = time.perf_counter() if times is not None else 0.0
         changed = changed_cells(frame.ij, previous.padded, motion, res,
                                 self.difference_config)
+        if len(self.earlier) > 1 and changed.any():
+            # The grid just appended is `previous` itself; the memory is the ones before it.
+            earlier = list(self.earlier)[:-1]
+            changed[changed] = not_occupied_before(
+                frame.ij[changed], self.builder.stack, [e[0] for e in earlier],
+                [e[1] for e in earlier], pose, res)
         d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:
@@ -334,8 +284,16 @@ class Pipeline:
         est = self.ego.update(scan)
         pose = np.asarray(est.pose, dtype=float)
         if not np.isfinite(pose).all():
-            return self._skip(scan, 'ego-motion gave no pose')
+            self.sources[str(est.source)] += 1
+            return self._skip(scan, 'no ego-motion pose: ' + _generic(est.reason))
         self.sources[str(est.source)] += 1
+        if est.source == SOURCE_INIT and self.stats['scans']:
+            # The estimator restarted its pose chain: the odometry-frame history is void.
+            log.warning('t=%.3f: ego-motion restarted (%s): detection and tracking restart',
+                        scan.stamp, est.reason)
+            self.stats['reset: ego-motion restarted'] += 1
+            self.detector.reset()
+            self.tracker.reset()
         t1 = time.perf_counter() if prof else 0.0
         det = self.detector.detect(scan, pose, want_grids)
         t2 = time.perf_counter() if prof else 0.0
@@ -352,6 +310,7 @@ class Pipeline:
                           created=frame.created, detection=det)
 
     def _skip(self, scan: Scan, reason: str) -> StepResult:
+        """A scan that produced nothing (counted under ``skipped: <reason>``)."""
         log.warning('scan at t=%.3f skipped: %s', scan.stamp, reason)
         self.stats[f'skipped: {reason}'] += 1
         empty = Blobs.empty(scan.stamp, np.full(3, np.nan))
@@ -359,3 +318,8 @@ class Pipeline:
                           source='skipped', blobs=empty, hypotheses=self.tracker.hyp,
                           newly_confirmed=np.zeros(0, np.intp), created=0,
                           detection=Detection(empty, 0), skipped=reason)
+
+
+def _generic(reason: str) -> str:
+    """A reason without its numbers, so that counts group alike cases."""
+    return re.sub(r'-?\d+(\.\d+)?', '#', str(reason))[:100]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import logging
 import time
 import tracemalloc
 from pathlib import Path
@@ -23,7 +24,7 @@ from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import Scan
 
 DEFAULT_BAGS = ('exp1_stationary_single_walker', 'exp2_translating_static',
-                'crossing_walkers')
+                'exp3_rotating_static', 'crossing_walkers')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,13 +49,19 @@ class Events:
         self.n_scans = sum(1 for e in events if e[0] == 'scan')
 
     def cycle(self, n_scans: int):
-        """The events repeated with stamps shifted by the recording's length each time."""
+        """The events repeated with stamps shifted by the recording's length each time and
+        the odometry continued from where the previous repeat ended."""
+        from laser_tracker.core.geometry import compose, inverse
+
+        odo = [e[2] for e in self.events if e[0] == 'odom']
+        step = compose(odo[-1], inverse(odo[0])) if odo else None
         done, k = 0, 0
+        offset = np.zeros(3)
         while done < n_scans:
             shift = k * self.duration
             for e in self.events:
                 if e[0] == 'odom':
-                    yield ('odom', e[1] + shift, e[2])
+                    yield ('odom', e[1] + shift, tuple(compose(offset, e[2])))
                 else:
                     s = e[1]
                     yield ('scan', Scan(stamp=s.stamp + shift, ranges=s.ranges,
@@ -66,6 +73,8 @@ class Events:
                     if done >= n_scans:
                         return
             k += 1
+            if step is not None:
+                offset = compose(step, offset)
 
 
 def load_bag(name: str) -> Events:
@@ -148,29 +157,42 @@ def sources(names) -> list[Events]:
     return out or [synthetic()]
 
 
-def timed_run(events: Events, config: PipelineConfig, n_scans: int) -> dict:
-    pipeline = Pipeline(config, profile=True)
-    # Warm-up (ray tables, imports, caches) on the first scans, not timed.
-    for e in events.cycle(min(20, events.n_scans)):
-        if e[0] == 'odom':
-            pipeline.add_odometry(e[1], e[2])
-        else:
-            pipeline.step(e[1])
-    pipeline = Pipeline(config, profile=True)
-    stream = list(events.cycle(n_scans))
-    gc.collect()
-    t0 = time.perf_counter()
-    cpu0 = time.process_time()
-    for e in stream:
-        if e[0] == 'odom':
-            pipeline.add_odometry(e[1], e[2])
-        else:
-            pipeline.step(e[1])
-    wall = time.perf_counter() - t0
-    cpu = time.process_time() - cpu0
-    return {'scans': n_scans, 'wall': wall, 'cpu': cpu,
-            'stages': {k: 1e3 * v / n_scans for k, v in pipeline.times.items()},
-            'sources': dict(pipeline.sources), 'created': pipeline.tracker.stats['created']}
+def timed_run(events: Events, config: PipelineConfig, n_scans: int, repeat: int = 3) -> dict:
+    """Whole passes over the recording (a fresh pipeline each, as a restarted node would
+    see it) until ``n_scans`` scans; the fastest of ``repeat`` such runs is kept."""
+    warm = Pipeline(config)
+    for e in events.events[:60]:                       # ray tables, imports, caches
+        warm.add_odometry(e[1], e[2]) if e[0] == 'odom' else warm.step(e[1])
+    best = None
+    for _ in range(repeat):
+        done, wall, cpu = 0, 0.0, 0.0
+        times = {s: 0.0 for s in STAGES}
+        sources: dict = {}
+        created = 0
+        while done < n_scans:
+            pipeline = Pipeline(config, profile=True)
+            gc.collect()
+            t0, c0 = time.perf_counter(), time.process_time()
+            for e in events.events:
+                if e[0] == 'odom':
+                    pipeline.add_odometry(e[1], e[2])
+                else:
+                    pipeline.step(e[1])
+                    done += 1
+                    if done >= n_scans:
+                        break
+            wall += time.perf_counter() - t0
+            cpu += time.process_time() - c0
+            for k, v in pipeline.times.items():
+                times[k] += v
+            for k, v in pipeline.sources.items():
+                sources[k] = sources.get(k, 0) + v
+            created += pipeline.tracker.stats['created']
+        if best is None or wall < best['wall']:
+            best = {'scans': done, 'wall': wall, 'cpu': cpu,
+                    'stages': {k: 1e3 * v / done for k, v in times.items()},
+                    'sources': sources, 'created': created}
+    return best
 
 
 def memory_run(events: Events, config: PipelineConfig, n_scans: int,
@@ -198,6 +220,8 @@ def memory_run(events: Events, config: PipelineConfig, n_scans: int,
 
 
 def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.ERROR)
+    logging.getLogger('laser_tracker').setLevel(logging.ERROR)   # the figures, not the logs
     config = PipelineConfig.load(args.config) if args.config else PipelineConfig()
     recordings = sources(args.bag or DEFAULT_BAGS)
     print(f'pipeline benchmark: {", ".join(r.name for r in recordings)}; one core, '
@@ -216,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
               f'{1e3 * r["wall"] / r["scans"]:>9.3f}')
         print(f'{"":<34} {"":>5} {"":>8} ego-motion sources {r["sources"]}, cpu/wall '
               f'{r["cpu"] / r["wall"]:.2f}, hypotheses created {r["created"]}')
-    rec = recordings[0]
+    rec = recordings[0]   # the first (stationary) recording cycles cleanly
     print(f'\nmemory (tracemalloc, pipeline state only) on {rec.name}, stamps continuing '
           f'over repeats')
     for label, n in (('short', args.short_scans), ('long', args.long_scans)):

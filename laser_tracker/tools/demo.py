@@ -9,7 +9,6 @@ recording has ground truth, otherwise the replay summary and the unlabelled repo
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from pathlib import Path
@@ -91,36 +90,45 @@ def _printer():
     return on_confirmed
 
 
+def _summary_lines(summary: dict) -> list[str]:
+    skipped = summary.get('scans_skipped') or {}
+    timing = summary.get('timing') or {}
+    lines = [f'  scans replayed      {summary.get("scans", "?")} '
+             f'({sum(skipped.values()) if isinstance(skipped, dict) else "?"} skipped)',
+             f'  hypotheses created  {summary.get("hypotheses_created", "?")}',
+             f'  confirmed tracks    {summary.get("confirmed_tracks", "?")}']
+    if 'scans_per_s' in timing:
+        lines.append(f'  speed               {timing["scans_per_s"]:.0f} scans/s')
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
+    from laser_tracker.config import from_dict
     from laser_tracker.tools import evaluate as ev
     from laser_tracker.tools.scoring import EvaluationConfig
 
     bag = resolve_bag(args.bag)
-    out = Path(args.out) if args.out else Path('out') / bag.name
-    eval_config = EvaluationConfig(threshold=args.threshold)  # checked before a long replay
-    if not 0.01 <= args.threshold <= 10.0:
-        raise LaserTrackerError(f'--threshold must be within 0.01..10 m, got {args.threshold}')
+    out = Path(args.out) if args.out else Path('out') / bag.name.removesuffix('.bag')
+    eval_config = from_dict(EvaluationConfig, {'threshold': args.threshold})  # before replay
     try:
         from laser_tracker.tools.replay import replay_bag
     except ImportError as exc:
         raise LaserTrackerError(f'replay is not available: {exc}') from None
-    config = None
-    if args.config:
-        config = args.config
     labelled = has_ground_truth(bag)
 
     print(f'replaying {bag} -> {out}')
-    print('tracks as they are confirmed (odometry frame):')
-    summary = replay_bag(bag, config=config, out_dir=out, progress=True,
+    print('tracks as they are confirmed (odometry frame):', flush=True)
+    summary = replay_bag(bag, config=args.config, out_dir=out, progress=True,
                          on_confirmed=_printer())
-    sys.stdout.flush()
+    print()
+    print('replay summary:')
+    print('\n'.join(_summary_lines(summary)))
     print()
     if labelled:
         result = ev.evaluate_replay(out, bag, eval_config)
     else:
-        print(f'{bag} has no ground truth: replay summary and the unlabelled report instead')
-        print(json.dumps(summary, indent=2, default=str))
+        print(f'{bag} has no ground truth: the unlabelled report instead of the evaluation')
         result = ev.report_unlabelled(out, eval_config)
     figures = ev.write_figures(result, out)
     result.result['figures'] = [str(p) for p in figures]

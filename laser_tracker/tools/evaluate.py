@@ -191,6 +191,9 @@ def evaluate_replay(folder: str | Path, bag: str | Path,
                            true_stamps, true_poses, tol)
     replayed = match_stamps(truth.stamps, np.sort(replay.ego_stamps), tol) >= 0
     skipped = int((~replayed).sum())
+    if not replayed.any():
+        raise InputFileError(folder, f'no scan of this replay has the stamp of a ground-truth '
+                             f'frame of {bag}: was it replayed from that recording?')
     if skipped:
         log.warning('%d of %d ground-truth frame(s) have no replayed scan and are not scored',
                     skipped, truth.stamps.size)
@@ -238,13 +241,16 @@ def format_table(result: dict) -> str:
     rows = [
         ('constant-velocity paths taken / detected',
          f'{result["paths_taken"]} / {result["paths_detected"]}'),
-        ('false detections', str(result['false_detections'])),
+        ('false detections', f'{result["false_detections"]}  '
+         f'({result["false_detections_after_match"]} right after the track was on an object)'),
         ('  length in frames (longest)',
          (', '.join(map(str, lengths[:20])) + (' ...' if len(lengths) > 20 else '')
           + f'  ({max(lengths)})') if lengths else '-'),
         ('velocity hypotheses made', f'{result["hypotheses_made"]}  '
                                      f'[{result["hypotheses_source"]}]'),
-        ('clearly incorrect hypotheses', str(result['incorrect_hypotheses'])),
+        ('clearly incorrect hypotheses', f'{result["incorrect_hypotheses"]}  '
+         f'({result["incorrect_hypotheses_steady"]} at least '
+         f'{cfg["settle_time"]:.1f} s after a velocity change)'),
         ('passing objects / detected',
          f'{result["objects_passing"]} / {result["objects_detected"]}'),
     ]
@@ -263,12 +269,19 @@ def format_table(result: dict) -> str:
     lines += ['', f'position error (Fig. 8), {e["count"]} matches']
     if e['count']:
         lines.append(f'  median {e["median"]:.3f} m, mean {e["mean"]:.3f} m, '
-                     f'95th percentile {e["p95"]:.3f} m, within 0.2 m {100 * e["within_0_2m"]:.0f} %')
+                     f'95th percentile {e["p95"]:.3f} m, '
+                     f'within 0.2 m {100 * e["within_0_2m"]:.0f} %')
     u = result.get('unlabelled_estimate') or {}
     if u:
-        lines += ['', f'unlabelled estimate (cross-check): {u["confirmed_tracks"]} confirmed '
-                  f'tracks, {u["estimated_false"]} moved < {u["min_displacement"]:.2f} m']
+        lines += ['', f'unlabelled estimate (cross-check of --no-ground-truth): '
+                  f'{u["estimated_false"]} of {u["confirmed_tracks"]} confirmed tracks '
+                  f'would count as false ({_rule(u)})']
     return '\n'.join(lines)
+
+
+def _rule(r: dict) -> str:
+    return (f'moved < {r["min_displacement"]:.2f} m or mean speed < '
+            f'{r["min_track_speed"]:.2f} m/s while confirmed')
 
 
 def format_unlabelled(result: dict) -> str:
@@ -281,11 +294,12 @@ def format_unlabelled(result: dict) -> str:
              f'  confirmed tracks                  {result["confirmed_tracks"]}'
              f'  ({_num(per, "{:.1f}")} per minute)',
              f'  estimated false detections        {result["estimated_false"]}'
-             f'  ({_num(fper, "{:.1f}")} per minute; moved < '
-             f'{result["min_displacement"]:.2f} m while confirmed)']
+             f'  ({_num(fper, "{:.1f}")} per minute)',
+             f'    counted as false: {_rule(result)}']
     if result['confirmed_tracks']:
         lines.append(f'  confirmed life in frames          median '
-                     f'{result["confirmed_frames_median"]:.0f}, max {result["confirmed_frames_max"]}')
+                     f'{result["confirmed_frames_median"]:.0f}, '
+                     f'max {result["confirmed_frames_max"]}')
     return '\n'.join(lines)
 
 
@@ -337,31 +351,44 @@ def error_figure(errors: np.ndarray, path: Path, threshold: float) -> Path:
     return out
 
 
+def _broken_path(poses: np.ndarray, jump: float = 2.0) -> np.ndarray:
+    """x, y of a pose sequence with NaN where it jumps (an ego-motion restart), for plotting."""
+    xy = np.asarray(poses, float)[:, :2]
+    cut = np.flatnonzero(np.hypot(*np.diff(xy, axis=0).T) > jump) + 1
+    return np.insert(xy, cut, np.nan, axis=0)
+
+
 def tracks_figure(truth: TruthTable | None, tracks: TrackTable, false_ids: set[int],
-                  path: Path, title: str, platform: np.ndarray | None = None) -> Path:
-    """Object trajectories (grey) and scored tracks (colour; red for false ones)."""
+                  path: Path, title: str, platform: np.ndarray | None = None,
+                  arrow_s: float = 0.5) -> Path:
+    """Object trajectories (grey), tracks (colour) with velocity arrows covering ``arrow_s``
+    seconds of travel, false ones as red crosses."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 7))
     if platform is not None and len(platform):
-        ax.plot(platform[:, 0], platform[:, 1], color='0.6', lw=1, ls='--', label='scanner')
+        xy = _broken_path(platform)
+        ax.plot(xy[:, 0], xy[:, 1], color='0.6', lw=1, ls='--', label='scanner')
     if truth is not None:
         for k, oid in enumerate(np.unique(truth.obj_id)):
             m = truth.obj_id == oid
             ax.plot(truth.x[m], truth.y[m], color='0.3', lw=2, alpha=0.5,
                     label='ground truth' if k == 0 else None)
-    cmap = plt.get_cmap('tab10')
+    colours = [c for i, c in enumerate(plt.get_cmap('tab10').colors) if i != 3]  # no red
     for k, tid in enumerate(np.unique(tracks.track_id)):
         m = tracks.track_id == tid
         bad = int(tid) in false_ids
-        ax.plot(tracks.x[m], tracks.y[m], '.', ms=4, color='tab:red' if bad else cmap(k % 10))
-        step = max(1, int(m.sum()) // 8)
-        ax.quiver(tracks.x[m][::step], tracks.y[m][::step], tracks.vx[m][::step],
-                  tracks.vy[m][::step], angles='xy', scale_units='xy', scale=1, width=0.003,
-                  color='tab:red' if bad else cmap(k % 10))
-    ax.plot([], [], 'r.', label='false detection')
+        colour = 'tab:red' if bad else colours[k % len(colours)]
+        ax.plot(tracks.x[m], tracks.y[m], 'x' if bad else '.', ms=5 if bad else 3,
+                color=colour)
+        step = max(1, int(m.sum()) // 6)
+        ax.quiver(tracks.x[m][::step], tracks.y[m][::step], arrow_s * tracks.vx[m][::step],
+                  arrow_s * tracks.vy[m][::step], angles='xy', scale_units='xy', scale=1,
+                  width=0.003, color=colour)
+    ax.plot([], [], 'x', color='tab:red', label='false detection')
+    ax.plot([], [], '.', color=colours[0], label=f'track (arrow: {arrow_s:g} s of travel)')
     ax.set(aspect='equal', xlabel='x (m)', ylabel='y (m)', title=title)
     ax.legend(loc='best', fontsize=8)
     fig.tight_layout()
@@ -376,13 +403,12 @@ def write_figures(ev: Evaluation, folder: str | Path) -> list[Path]:
     written = []
     try:
         if result['mode'] == 'unlabelled':
-            false_ids = {t['track'] for t in result['tracks']
-                         if t['displacement'] < result['min_displacement']}
+            false_ids = {t['track'] for t in result['tracks'] if t['estimated_false']}
             conf = replay.tracks.select(replay.tracks.confirmed)
             written.append(tracks_figure(
                 None, conf, false_ids, folder / REPORT_FIGURE,
                 f'confirmed tracks (odometry frame): {len(result["tracks"])}, '
-                f'{len(false_ids)} moved < {result["min_displacement"]:.2f} m',
+                f'{len(false_ids)} estimated false (red)',
                 platform=replay.ego_poses))
         else:
             written.append(error_figure(ev.scores.errors, folder / ERROR_FIGURE,
@@ -406,7 +432,8 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
     from laser_tracker.config import from_dict
 
     values = {'threshold': args.threshold, 'confirmed_only': args.confirmed_only,
-              'min_speed': args.min_speed, 'min_displacement': args.min_displacement}
+              'min_speed': args.min_speed, 'min_displacement': args.min_displacement,
+              'min_track_speed': args.min_track_speed}
     return from_dict(EvaluationConfig, values)
 
 
@@ -432,6 +459,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--min-displacement', type=float, default=d.min_displacement,
                         help='--no-ground-truth: a confirmed track moving less than this (m) '
                              f'counts as a false detection (default {d.min_displacement})')
+    parser.add_argument('--min-track-speed', type=float, default=d.min_track_speed,
+                        help='--no-ground-truth: a confirmed track slower than this on '
+                             f'average (m/s) counts as a false detection (default '
+                             f'{d.min_track_speed})')
     parser.add_argument('--json', metavar='OUT', help='JSON output (default DIR/evaluation.json)')
     parser.add_argument('--no-figures', action='store_true', help='write no figures')
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 import numpy as np
 
@@ -41,6 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
             frame_id='laser') -> dict:
     """Convert; returns counts ``{'scans': N, 'odometry': M, 'odometry_source': ...}``."""
+    if Path(out).exists() and not overwrite:
+        raise InputFileError(out, 'output already exists (use --overwrite or another name)')
     carmen = read_carmen(log_path, max_reading=max_reading)
     o_stamps, o_poses, o_vel, source = carmen.odometry()
     order = np.argsort(o_stamps, kind='stable')

@@ -34,10 +34,14 @@ object is the one it is compared with)
     * false detections: a scored track farther than ``threshold`` from every present object;
       each maximal run of consecutive scans of one track is one false detection, its length
       in frames. (A duplicate track on a real object is not a false detection, though CLEAR
-      MOT counts it as a false positive.)
+      MOT counts it as a false positive.) A run that starts right after the same track was
+      near an object is flagged ``after_match``: a real track overshooting (coasting on)
+      after its object turned or stopped, rather than a ghost.
     * clearly incorrect hypotheses: scored tracks that, at some scan where they are near an
       object, have a speed differing from the object's by more than ``wrong_speed`` or (both
       moving at least ``min_speed``) a direction differing by more than ``wrong_angle_deg``.
+      The *steady* count leaves out scans less than ``settle_time`` after the object changed
+      velocity (path start), where any filter still carries the old velocity.
     * passing objects: objects detectable in at least one frame; detected: near a scored
       track in at least one frame.
 
@@ -47,8 +51,11 @@ Position error (Fig. 8)
 
 Unlabelled recordings
     :func:`score_unlabelled` counts confirmed tracks and estimates false detections as the
-    confirmed tracks whose displacement over their confirmed life (largest distance from
-    their first confirmed position) is below ``min_displacement``: they did not go anywhere.
+    confirmed tracks that did not move like a walker: their displacement over their
+    confirmed life (largest distance from their first confirmed position) is below
+    ``min_displacement``, or their mean reported speed while confirmed is below
+    ``min_track_speed``. :func:`score` computes the same estimate beside the true count, so
+    the simulated recordings calibrate it.
 """
 from __future__ import annotations
 
@@ -84,9 +91,15 @@ class EvaluationConfig:
                                    'hypothesis (deg)', min=1.0, max=180.0)
     wrong_speed: float = param(1.0, 'speed error of a clearly incorrect hypothesis (m/s)',
                                min=0.01, max=20.0)
+    settle_time: float = param(0.5, 'the steady count of clearly incorrect hypotheses ignores '
+                               'scans this soon after the object changed velocity (s)',
+                               min=0.0, max=10.0)
     min_displacement: float = param(0.3, 'unlabelled data: a confirmed track that moves less '
                                     'than this over its confirmed life counts as false (m)',
                                     min=0.0, max=10.0)
+    min_track_speed: float = param(0.3, 'unlabelled data: a confirmed track whose mean '
+                                   'reported speed is below this counts as false (m/s)',
+                                   min=0.0, max=5.0)
     stamp_tolerance: float = param(0.25, 'a track row belongs to the scan whose stamp is '
                                    'within this fraction of the median scan period',
                                    min=0.01, max=0.5)
@@ -187,7 +200,7 @@ def median_period(stamps: np.ndarray) -> float:
 
 
 def match_stamps(query: np.ndarray, stamps: np.ndarray, tolerance: float) -> np.ndarray:
-    """Index into sorted ``stamps`` of each query stamp's nearest, or -1 if none within tolerance."""
+    """Per query stamp, the index of the nearest of sorted ``stamps``; -1 if beyond tolerance."""
     query = np.asarray(query, float)
     stamps = np.asarray(stamps, float)
     if stamps.size == 0:
@@ -264,6 +277,7 @@ class FalseDetection:
     track_id: int
     start: float
     frames: int
+    after_match: bool = False  # the same track was on an object the scan before (overshoot)
 
 
 @dataclass
@@ -277,6 +291,8 @@ class Scores:
     false_detections: list[FalseDetection]
     incorrect_tracks: list[int]
     incorrect_rows: int
+    incorrect_list: list[dict]
+    incorrect_steady: list[int]
     objects_passing: int
     objects_detected: int
     tracks_scored: int
@@ -315,11 +331,15 @@ class Scores:
             'false_detections': len(self.false_detections),
             'false_detection_frames': lengths,
             'false_detection_max_frames': max(lengths, default=0),
+            'false_detections_after_match': sum(f.after_match for f in self.false_detections),
             'false_detection_list': [{'track': f.track_id, 'start': round(f.start, 3),
-                                      'frames': f.frames} for f in self.false_detections],
+                                      'frames': f.frames, 'after_match': f.after_match}
+                                     for f in self.false_detections],
             'incorrect_hypotheses': len(self.incorrect_tracks),
             'incorrect_hypothesis_ids': self.incorrect_tracks,
             'incorrect_rows': self.incorrect_rows,
+            'incorrect_hypotheses_steady': len(self.incorrect_steady),
+            'incorrect_list': self.incorrect_list[:200],
             'objects_passing': self.objects_passing,
             'objects_detected': self.objects_detected,
             'position_error': self.error_stats(),
@@ -359,8 +379,8 @@ def _mot_summary(acc, name: str) -> dict:
     row = summary.loc[name]
     out = {}
     for k in MOT_METRICS:
-        v = float(row[k])
-        out[k] = int(v) if k.startswith('num_') else (None if math.isnan(v) else v)
+        v = float(row[k])  # MOTA is -inf, precision/recall nan, with nothing to count
+        out[k] = int(v) if k.startswith('num_') else (v if math.isfinite(v) else None)
     return out
 
 
@@ -374,37 +394,53 @@ def _runs(frames: np.ndarray) -> list[tuple[int, int]]:
     return [(int(frames[s]), int(e - s)) for s, e in zip(starts, ends)]
 
 
-def segment_paths(truth: TruthTable, config: EvaluationConfig) -> list[Path]:
-    """Cut every object's trajectory into constant-velocity paths (module docstring)."""
-    paths = []
+def _regimes(truth: TruthTable, config: EvaluationConfig):
+    """Yield ``(object id, truth rows, moving)``: each object's trajectory cut into paths
+    (moving) and standing runs; a frame without the object ends either."""
     turn = math.radians(config.turn_deg)
     for oid in np.unique(truth.obj_id):
         rows = np.flatnonzero(truth.obj_id == oid)
         rows = rows[np.argsort(truth.frame[rows], kind='stable')]
+        frames = truth.frame[rows]
         speed = np.hypot(truth.vx[rows], truth.vy[rows])
         heading = np.arctan2(truth.vy[rows], truth.vx[rows])
+        moving = speed >= config.min_speed
         i = 0
         while i < rows.size:
-            if speed[i] < config.min_speed:
-                i += 1
-                continue
             j = i + 1
-            while (j < rows.size and truth.frame[rows[j]] == truth.frame[rows[j - 1]] + 1
-                   and speed[j] >= config.min_speed
-                   and abs(speed[j] - speed[i]) <= config.speed_change
-                   and abs(float(wrap_angle(heading[j] - heading[i]))) <= turn):
+            while j < rows.size and frames[j] == frames[j - 1] + 1 and moving[j] == moving[i]:
+                if moving[i] and (abs(speed[j] - speed[i]) > config.speed_change
+                                  or abs(float(wrap_angle(heading[j] - heading[i]))) > turn):
+                    break
                 j += 1
-            seg = rows[i:j]
-            paths.append(Path(
-                obj_id=int(oid), kind=str(truth.kind[seg[0]]),
-                first_frame=int(truth.frame[seg[0]]), last_frame=int(truth.frame[seg[-1]]),
-                start=float(truth.stamps[truth.frame[seg[0]]]),
-                end=float(truth.stamps[truth.frame[seg[-1]]]),
-                speed=float(speed[i:j].mean()),
-                heading_deg=math.degrees(math.atan2(truth.vy[seg].mean(), truth.vx[seg].mean())),
-                visible=bool(truth.visible[seg].any())))
+            yield int(oid), rows[i:j], bool(moving[i])
             i = j
+
+
+def segment_paths(truth: TruthTable, config: EvaluationConfig) -> list[Path]:
+    """Cut every object's trajectory into constant-velocity paths (module docstring)."""
+    paths = []
+    for oid, seg, moving in _regimes(truth, config):
+        if not moving:
+            continue
+        speed = np.hypot(truth.vx[seg], truth.vy[seg])
+        paths.append(Path(
+            obj_id=oid, kind=str(truth.kind[seg[0]]),
+            first_frame=int(truth.frame[seg[0]]), last_frame=int(truth.frame[seg[-1]]),
+            start=float(truth.stamps[truth.frame[seg[0]]]),
+            end=float(truth.stamps[truth.frame[seg[-1]]]),
+            speed=float(speed.mean()),
+            heading_deg=math.degrees(math.atan2(truth.vy[seg].mean(), truth.vx[seg].mean())),
+            visible=bool(truth.visible[seg].any())))
     return paths
+
+
+def regime_start(truth: TruthTable, config: EvaluationConfig) -> np.ndarray:
+    """Per truth row, the stamp at which the object's current path or standing run began."""
+    start = np.zeros(truth.obj_id.size)
+    for _, seg, _ in _regimes(truth, config):
+        start[seg] = truth.stamps[truth.frame[seg[0]]]
+    return start
 
 
 def score(truth: TruthTable, tracks: TrackTable,
@@ -469,9 +505,12 @@ def score(truth: TruthTable, tracks: TrackTable,
     false = []
     unmatched = near_obj < 0
     for tid in np.unique(scored.track_id):
-        frames = np.sort(tframe[(scored.track_id == tid) & unmatched])
+        mine = scored.track_id == tid
+        matched_frames = set(tframe[mine & ~unmatched].tolist())
+        frames = np.sort(tframe[mine & unmatched])
         for first, length in _runs(frames):
-            false.append(FalseDetection(int(tid), float(truth.stamps[first]), length))
+            false.append(FalseDetection(int(tid), float(truth.stamps[first]), length,
+                                        after_match=(first - 1) in matched_frames))
     false.sort(key=lambda f: (f.start, f.track_id))
 
     m = near_obj >= 0
@@ -484,13 +523,29 @@ def score(truth: TruthTable, tracks: TrackTable,
         (ts >= config.min_speed) & (os_ >= config.min_speed)
         & (angle > math.radians(config.wrong_angle_deg)))
     incorrect = sorted({int(t) for t in scored.track_id[m][wrong]})
+    since_change = truth.stamps[truth.frame[o]] - regime_start(truth, config)[o]
+    steady = since_change >= config.settle_time - 1e-9
+    incorrect_steady = sorted({int(t) for t in scored.track_id[m][wrong & steady]})
+    incorrect_list = []
+    rows_m = np.flatnonzero(m)
+    for k in np.flatnonzero(wrong):  # the offending rows, for the reader to check
+        r = rows_m[k]
+        incorrect_list.append({
+            'track': int(scored.track_id[r]), 'stamp': round(float(scored.stamp[r]), 3),
+            'object': int(truth.obj_id[o[k]]),
+            'track_velocity': [round(float(tv[k, 0]), 3), round(float(tv[k, 1]), 3)],
+            'object_velocity': [round(float(ov[k, 0]), 3), round(float(ov[k, 1]), 3)],
+            'angle_deg': round(math.degrees(float(angle[k])), 1),
+            'since_velocity_change_s': round(float(since_change[k]), 3)})
 
     passing = {int(i) for i in truth.obj_id[detectable]}
     detected = {o for o, _ in detected_in} & passing
 
     return Scores(config=config, frames=n, clear_mot=clear_mot, paths=paths,
                   false_detections=false, incorrect_tracks=incorrect,
-                  incorrect_rows=int(wrong.sum()), objects_passing=len(passing),
+                  incorrect_rows=int(wrong.sum()), incorrect_list=incorrect_list,
+                  incorrect_steady=incorrect_steady,
+                  objects_passing=len(passing),
                   objects_detected=len(detected),
                   tracks_scored=int(np.unique(scored.track_id).size), errors=errors)
 
@@ -518,15 +573,19 @@ def score_unlabelled(tracks: TrackTable, scan_stamps: np.ndarray,
     """Confirmed tracks per minute and the estimated false detections per minute.
 
     The estimate counts confirmed tracks whose displacement over their confirmed life is below
-    ``config.min_displacement`` (a real mover goes somewhere; noise and ego-motion errors
-    mostly do not). The duration is that of the scans, one median period added for the last.
+    ``config.min_displacement`` or whose mean speed is below ``config.min_track_speed`` (a
+    walker goes somewhere at walking pace; clutter that flickers into a track mostly does
+    not). The duration is that of the scans, one median period added for the last.
     """
     scan_stamps = np.unique(np.asarray(scan_stamps, float))
     duration = (float(scan_stamps[-1] - scan_stamps[0]) + median_period(scan_stamps)
                 if scan_stamps.size else 0.0)
     minutes = duration / 60.0
     lives = confirmed_track_lives(tracks)
-    false = [life for life in lives if life['displacement'] < config.min_displacement]
+    for life in lives:
+        life['estimated_false'] = bool(life['displacement'] < config.min_displacement
+                                       or life['mean_speed'] < config.min_track_speed)
+    false = [life for life in lives if life['estimated_false']]
     frames = np.array([life['frames'] for life in lives], float)
 
     def per_minute(k):
@@ -541,6 +600,7 @@ def score_unlabelled(tracks: TrackTable, scan_stamps: np.ndarray,
         'estimated_false': len(false),
         'estimated_false_per_minute': per_minute(len(false)),
         'min_displacement': config.min_displacement,
+        'min_track_speed': config.min_track_speed,
         'confirmed_frames_median': float(np.median(frames)) if frames.size else None,
         'confirmed_frames_max': int(frames.max()) if frames.size else None,
         'tracks': lives,

@@ -1,0 +1,678 @@
+"""Ego-motion: the scanner's motion between scans from odometry plus ICP scan matching.
+
+Pure numpy/scipy (no ROS). Usage, one estimator per scan stream::
+
+    est = EgoMotionEstimator(EgoMotionConfig())
+    est.add_odometry(stamp, (x, y, theta))     # every odometry sample, as it arrives
+    e = est.update(scan)                       # every Scan -> EgoMotionEstimate
+    e.pose      # (3,) scanner pose in the odometry frame; NaN when source == 'none'
+    e.motion    # (3,) motion since the previous scan with a pose (previous scanner frame)
+    e.covariance, e.source, e.reason, e.ok
+
+Offline, with the whole odometry as a PoseTrack: :func:`estimate_track`.
+
+Method (per scan):
+
+1. Odometry is interpolated at ``scan.stamp + odom_latency`` (odometry stamped late by
+   ``odom_latency`` seconds) and the scanner's mounting (``mount_*``) applied; the increment
+   since the previous scan is the prediction and a Gaussian prior (``odom_sigma_*``).
+2. The scan's valid points (``Scan.valid()`` and ``min_range``/``max_range``, at most
+   ``max_points``) are matched by point-to-line ICP (:mod:`laser_tracker.core.icp`) against a
+   local map of the last ``map_scans`` scans placed with their estimated poses, starting at
+   the prediction, with coarse-to-fine association distances (``association_distance`` down
+   to ``association_distance_final``) and Cauchy weights.
+3. ICP and odometry are fused by information: the ICP direction constrained by a fraction
+   ``lambda`` of the points (eigenvalues of the normalised Hessian) gets the variance
+   ``icp_model_sigma**2 / lambda``, so weakly constrained directions lean on odometry.
+   Directions with ``lambda < degeneracy_threshold`` (a featureless corridor, a single wall)
+   take the odometry value exactly (source ``icp_partial``; without odometry, the
+   constant-velocity guess, said so in ``reason``).
+4. Checks: enough points, overlap (``min_inlier_ratio``), residual (``max_rms``),
+   convergence, the platform's speed limits (``max_translation_speed``,
+   ``max_rotation_speed``) and the disagreement with odometry (``max_correction_*``).
+   A failed check falls back to odometry (source ``odometry``); without usable odometry the
+   scan gets no pose (source ``none``, pose NaN, state unchanged); after ``max_lost_scans``
+   such scans the map restarts from the next scan (source ``init``).
+
+Sources: ``init`` (first scan or restart: pose = odometry pose or the origin, motion 0),
+``icp``, ``icp_partial`` (ICP with odometry along the degenerate directions), ``odometry``
+(ICP refused; reason says why), ``none`` (no pose). ``reason`` is a short text for logs.
+
+Bad input is never fatal: non-finite/non-positive ranges are not points; too few points or
+an all-max-range scan fall back to odometry; odometry that is missing, late (beyond
+``odom_max_extrapolation``), has a gap (``odom_max_gap``), jumps (faster than the platform),
+arrives out of order (inserted in order) or goes back in time by more than
+``odom_reset_threshold`` (buffer cleared) is handled in :class:`OdometryBuffer`; a scan
+stamped before the previous one resets the estimator (a bag replayed in a loop), one with
+the same stamp is skipped. Each case is logged (rate-limited) with its reason and counted
+in ``stats``.
+"""
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from laser_tracker.config import param
+from laser_tracker.core import icp
+from laser_tracker.core.scan import Scan, beam_table
+
+log = logging.getLogger(__name__)
+
+SOURCE_INIT = 'init'
+SOURCE_ICP = 'icp'
+SOURCE_PARTIAL = 'icp_partial'
+SOURCE_ODOMETRY = 'odometry'
+SOURCE_NONE = 'none'
+SOURCES = (SOURCE_INIT, SOURCE_ICP, SOURCE_PARTIAL, SOURCE_ODOMETRY, SOURCE_NONE)
+
+_PI = 3.141592653589793
+
+
+@dataclass(frozen=True)
+class EgoMotionConfig:
+    """Section ``ego_motion``: odometry prior, ICP and the acceptance checks."""
+
+    # --- scanner mounting (base_link -> laser)
+    mount_x: float = param(0.0, 'Scanner position on the platform, forward (m).',
+                           min=-10.0, max=10.0)
+    mount_y: float = param(0.0, 'Scanner position on the platform, left (m).',
+                           min=-10.0, max=10.0)
+    mount_yaw: float = param(0.0, 'Scanner yaw on the platform (rad).', min=-_PI, max=_PI)
+    # --- odometry
+    odom_latency: float = param(
+        0.0, 'Odometry time stamps minus the true time of the pose (s): the pose for a scan '
+        'stamped t is read at t + latency (the paper\'s "delays and timing errors").',
+        min=-2.0, max=2.0)
+    odom_max_extrapolation: float = param(
+        0.1, 'Odometry older than the scan by at most this (s) is extrapolated at its last '
+        'velocity; older means "odometry late" (no odometry for that scan).', min=0.0, max=2.0)
+    odom_max_gap: float = param(
+        2.0, 'Largest time between two odometry samples to interpolate across (s).',
+        min=0.001, max=60.0)
+    odom_buffer: float = param(30.0, 'Odometry history kept behind the latest scan (s).',
+                               min=1.0, max=3600.0)
+    odom_reset_threshold: float = param(
+        1.0, 'An odometry sample older than the newest by more than this (s) is a restart '
+        '(bag loop): the buffer is cleared. Younger ones are inserted in time order.',
+        min=0.0, max=3600.0)
+    odom_sigma_xy: float = param(
+        0.01, 'Odometry increment noise per scan step, each of x and y (m, 1 sigma).',
+        min=1e-4, max=10.0)
+    odom_sigma_xy_per_m: float = param(
+        0.05, 'Additional odometry translation noise per metre travelled (m/m).',
+        min=0.0, max=1.0)
+    odom_sigma_theta: float = param(
+        0.0087, 'Odometry increment rotation noise per scan step (rad, 1 sigma; 0.5 deg).',
+        min=1e-5, max=3.0)
+    odom_sigma_theta_per_rad: float = param(
+        0.05, 'Additional odometry rotation noise per radian turned (rad/rad).',
+        min=0.0, max=1.0)
+    # --- platform limits
+    max_translation_speed: float = param(
+        2.0, 'Platform maximum speed (m/s): faster matches and odometry steps are rejected.',
+        min=0.01, max=100.0)
+    max_rotation_speed: float = param(
+        _PI, 'Platform maximum turn rate (rad/s): faster matches and odometry steps are '
+        'rejected.', min=0.01, max=100.0)
+    # --- scan points
+    min_range: float = param(0.05, 'Readings closer than this (m) are not used.',
+                             min=0.0, max=10.0)
+    max_range: float = param(40.0, 'Readings farther than this (m) are not used.',
+                             min=0.5, max=1000.0)
+    max_points: int = param(200, 'At most this many scan points (evenly thinned) are matched.',
+                            min=10, max=100000)
+    min_points: int = param(30, 'Fewer valid (or matched) points than this: no ICP.',
+                            min=3, max=100000)
+    # --- ICP
+    map_scans: int = param(5, 'Scans in the local map the current scan is matched against.',
+                           min=1, max=100)
+    association_distance: float = param(
+        1.0, 'First (coarsest) nearest-neighbour association distance (m).',
+        min=0.01, max=10.0)
+    association_distance_final: float = param(
+        0.1, 'Last (finest) association distance (m); the levels between are geometric.',
+        min=0.005, max=10.0)
+    association_levels: int = param(3, 'Number of association distances, coarse to fine.',
+                                    min=1, max=10)
+    final_associations: int = param(2, 'Times the finest distance is re-associated.',
+                                    min=1, max=10)
+    coarse_stride: int = param(
+        1, 'Use every n-th scan point at the coarser association distances (speed).',
+        min=1, max=10)
+    steps_per_association: int = param(3, 'Gauss-Newton steps per association (fewer when '
+                                       'a step is below 0.1 mm and 0.006 deg).', min=1, max=10)
+    kernel_ratio: float = param(
+        0.3, 'Cauchy kernel scale as a fraction of the current association distance.',
+        min=0.01, max=10.0)
+    converged_translation: float = param(
+        0.005, 'ICP has converged when its last step moved less than this (m) ...',
+        min=1e-6, max=1.0)
+    converged_rotation: float = param(
+        0.002, '... and turned less than this (rad).', min=1e-6, max=1.0)
+    normal_max_gap: float = param(
+        0.3, 'Neighbouring scan points farther apart than this (m, plus 5 % of the range) '
+        'are on different surfaces (normal estimation).', min=0.01, max=5.0)
+    icp_model_sigma: float = param(
+        0.01, 'Error of ICP along a direction constrained by every point (m); a direction '
+        'constrained by a fraction f of the points gets sigma / sqrt(f). Weighs ICP against '
+        'the odometry prior.', min=1e-4, max=1.0)
+    degeneracy_threshold: float = param(
+        0.01, 'A direction constrained by less than this fraction of the points is '
+        'degenerate: odometry is used along it.', min=0.0, max=1.0)
+    # --- acceptance
+    min_inlier_ratio: float = param(
+        0.3, 'Least fraction of scan points matched within the final distance.',
+        min=0.0, max=1.0)
+    max_rms: float = param(0.1, 'Largest weighted RMS point-to-line residual (m).',
+                           min=0.001, max=10.0)
+    max_correction_translation: float = param(
+        0.5, 'Largest ICP correction of the odometry prediction (m); more is a false match.',
+        min=0.01, max=100.0)
+    max_correction_rotation: float = param(
+        0.35, 'Largest ICP correction of the odometry prediction (rad).', min=0.001,
+        max=_PI)
+    max_lost_scans: int = param(
+        5, 'After this many scans without a pose in a row the local map restarts.',
+        min=1, max=100000)
+
+
+@dataclass(frozen=True)
+class EgoMotionEstimate:
+    """The ego-motion result for one scan (see the module docstring for ``source``)."""
+
+    stamp: float
+    pose: np.ndarray            # (3,) scanner pose in the odometry frame (NaN: no pose)
+    motion: np.ndarray          # (3,) relative motion since the previous posed scan (NaN: none)
+    covariance: np.ndarray      # (3, 3) of ``motion`` (scanner-frame perturbation)
+    source: str
+    reason: str
+    dt: float = 0.0             # time since the previous posed scan (s)
+    odometry_motion: np.ndarray | None = None  # the odometry increment, when available
+    n_points: int = 0           # scan points used
+    inlier_ratio: float = 0.0   # ICP: fraction of points matched within the final distance
+    rms: float = float('nan')   # ICP: weighted RMS residual (m)
+    iterations: int = 0         # ICP: Gauss-Newton steps
+    min_eigenvalue: float = float('nan')  # ICP: weakest normalised Hessian eigenvalue
+
+    @property
+    def ok(self) -> bool:
+        """True when ``pose`` and ``motion`` are usable."""
+        return self.source != SOURCE_NONE
+
+
+# ------------------------------------------------------------------------------ SE(2)
+
+
+def _wrap(a: float) -> float:
+    return (a + _PI) % (2.0 * _PI) - _PI
+
+
+def _compose(a, b) -> np.ndarray:
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], _wrap(a[2] + b[2])])
+
+
+def _between(a, b) -> np.ndarray:
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(b[2] - a[2])])
+
+
+# --------------------------------------------------------------------------- odometry
+
+
+class OdometryBuffer:
+    """Time-ordered odometry samples, interpolated on demand; robust to bad streams.
+
+    Samples are split into *segments*: a jump (a step faster than the platform can move)
+    starts a new one, and nothing is interpolated across segments. ``add`` returns None, or
+    ``(kind, message)`` when the sample was not stored as is (kind: a fixed short label).
+    """
+
+    def __init__(self, config: EgoMotionConfig):
+        self.config = config
+        self.clear()
+
+    def clear(self) -> None:
+        self._t: list[float] = []
+        self._p: list[tuple[float, float, float]] = []
+        self._seg: list[int] = []
+        self._segment = 0
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    @property
+    def newest(self) -> float | None:
+        return self._t[-1] if self._t else None
+
+    def _jumped(self, t0, p0, t1, p1) -> bool:
+        c = self.config
+        dt = abs(t1 - t0)
+        dd = math.hypot(p1[0] - p0[0], p1[1] - p0[1])
+        da = abs(_wrap(p1[2] - p0[2]))
+        return (dd > 1.5 * c.max_translation_speed * dt + 0.1
+                or da > 1.5 * c.max_rotation_speed * dt + 0.1)
+
+    def add(self, stamp: float, pose) -> tuple[str, str] | None:
+        try:
+            t = float(stamp)
+            p = (float(pose[0]), float(pose[1]), float(pose[2]))
+        except (TypeError, ValueError, IndexError):
+            return 'bad odometry', 'odometry sample is not a time stamp and (x, y, theta)'
+        if not (math.isfinite(t) and all(math.isfinite(v) for v in p)):
+            return 'bad odometry', 'non-finite odometry sample (ignored)'
+        p = (p[0], p[1], _wrap(p[2]))
+        if not self._t or t > self._t[-1]:
+            reason = None
+            if self._t and self._jumped(self._t[-1], self._p[-1], t, p):
+                self._segment += 1
+                q = self._p[-1]
+                reason = 'odometry jumped', (
+                    f'odometry jumped {math.hypot(p[0] - q[0], p[1] - q[1]):.2f} m / '
+                    f'{math.degrees(abs(_wrap(p[2] - q[2]))):.1f} deg in {t - self._t[-1]:.3f} s '
+                    f'(faster than the platform): new segment')
+            self._t.append(t)
+            self._p.append(p)
+            self._seg.append(self._segment)
+            if len(self._t) > 200000:  # hard memory bound, whatever the query pattern
+                del self._t[:100000], self._p[:100000], self._seg[:100000]
+            return reason
+        if t == self._t[-1] or t in self._t[max(0, len(self._t) - 8):]:
+            return 'odometry duplicate', 'duplicate odometry stamp (ignored)'
+        if self._t[-1] - t > self.config.odom_reset_threshold:
+            newest = self._t[-1]
+            self.clear()
+            self._t.append(t)
+            self._p.append(p)
+            self._seg.append(self._segment)
+            return 'odometry restart', (f'odometry went back in time {newest - t:.3f} s '
+                                        f'(restart?): buffer cleared')
+        i = bisect.bisect_left(self._t, t)
+        if i == 0:
+            return 'odometry too old', 'odometry sample older than the buffer (ignored)'
+        seg = self._seg[i - 1]
+        self._t.insert(i, t)
+        self._p.insert(i, p)
+        self._seg.insert(i, seg)
+        return 'odometry out of order', 'odometry out of order (inserted in time order)'
+
+    def trim(self, before: float) -> None:
+        """Forget samples older than ``before`` (keeping one for interpolation)."""
+        i = bisect.bisect_left(self._t, before) - 1
+        if i > 64:
+            del self._t[:i], self._p[:i], self._seg[:i]
+
+    def pose_at(self, t: float) -> tuple[np.ndarray | None, int, str]:
+        """``(pose, segment, '')`` at time ``t``, or ``(None, -1, reason)``."""
+        c = self.config
+        ts = self._t
+        if not ts:
+            return None, -1, 'no odometry received'
+        if t > ts[-1]:
+            late = t - ts[-1]
+            if late > c.odom_max_extrapolation:
+                return None, -1, f'odometry late: newest sample {late:.3f} s before the scan'
+            p1 = self._p[-1]
+            if len(ts) >= 2 and self._seg[-2] == self._seg[-1] and \
+                    ts[-1] - ts[-2] <= c.odom_max_gap:
+                p0, dt0 = self._p[-2], ts[-1] - ts[-2]
+                f = late / dt0
+                return np.array([p1[0] + (p1[0] - p0[0]) * f, p1[1] + (p1[1] - p0[1]) * f,
+                                 _wrap(p1[2] + _wrap(p1[2] - p0[2]) * f)]), self._seg[-1], ''
+            return np.array(p1), self._seg[-1], ''
+        if t < ts[0]:
+            return None, -1, f'no odometry before the scan (first sample {ts[0] - t:.3f} s later)'
+        i = bisect.bisect_left(ts, t)
+        if ts[i] == t:
+            return np.array(self._p[i]), self._seg[i], ''
+        t0, t1 = ts[i - 1], ts[i]
+        if self._seg[i - 1] != self._seg[i]:
+            return None, -1, 'odometry jumped at the scan time'
+        if t1 - t0 > c.odom_max_gap:
+            return None, -1, f'odometry gap of {t1 - t0:.3f} s around the scan'
+        p0, p1 = self._p[i - 1], self._p[i]
+        f = (t - t0) / (t1 - t0)
+        return np.array([p0[0] + (p1[0] - p0[0]) * f, p0[1] + (p1[1] - p0[1]) * f,
+                         _wrap(p0[2] + _wrap(p1[2] - p0[2]) * f)]), self._seg[i], ''
+
+
+# -------------------------------------------------------------------------- estimator
+
+
+class EgoMotionEstimator:
+    """Odometry prior plus point-to-line ICP against a short local map (module docstring)."""
+
+    def __init__(self, config: EgoMotionConfig | None = None):
+        self.config = config or EgoMotionConfig()
+        c = self.config
+        self.odometry = OdometryBuffer(c)
+        self._mount = np.array([c.mount_x, c.mount_y, c.mount_yaw], dtype=float)
+        self._has_mount = bool(np.any(self._mount != 0.0))
+        hi, lo, n = c.association_distance, c.association_distance_final, c.association_levels
+        if n == 1 or hi <= lo:
+            self._distances = (lo,)
+        else:
+            self._distances = tuple(float(v) for v in np.geomspace(hi, lo, n))
+        self.stats: Counter = Counter()
+        self._notes: Counter = Counter()
+        self._map = icp.LocalMap(c.map_scans)
+        self._reset_state()
+
+    # ----------------------------------------------------------------- public API
+
+    def add_odometry(self, stamp: float, pose) -> None:
+        """Feed one odometry sample (platform pose ``x, y, theta`` in the odometry frame)."""
+        note = self.odometry.add(stamp, pose)
+        if note:
+            self._note(*note)
+
+    def reset(self, reason: str = 'reset requested') -> None:
+        """Forget the local map and the pose chain (odometry history is kept)."""
+        self._note('reset', f'ego-motion reset: {reason}', level=logging.WARNING)
+        self.stats['resets'] += 1
+        self._reset_state()
+
+    def update(self, scan: Scan) -> EgoMotionEstimate:
+        """Estimate the motion for ``scan`` (see the module docstring)."""
+        c = self.config
+        t = float(scan.stamp)
+        if self._stamp is not None:
+            if t < self._stamp:
+                self.reset(f'time went backwards ({self._stamp:.3f} -> {t:.3f} s)')
+            elif t == self._stamp:
+                return self._none(scan, 'scan stamp equals the previous one (skipped)', 0,
+                                  lost=False)
+
+        pts = self._points(scan)
+        n_pts = pts.shape[0]
+        odo, seg, odo_reason = self.odometry.pose_at(t + c.odom_latency)
+        if odo is not None:
+            self.odometry.trim(t + c.odom_latency - c.odom_buffer)
+            if self._has_mount:
+                odo = _compose(odo, self._mount)
+
+        if self._pose is None:
+            return self._init(scan, pts, odo, seg, odo_reason)
+
+        dt = t - self._stamp
+        # --- odometry increment and the prediction
+        inc = None
+        if odo is None:
+            inc_reason = odo_reason
+        elif self._odo is None:
+            inc_reason = 'no odometry at the previous scan'
+        elif seg != self._seg:
+            inc_reason = 'odometry jumped since the previous scan'
+        else:
+            inc = _between(self._odo, odo)
+            speed = self._too_fast(inc, dt)
+            if speed:
+                inc_reason = f'odometry step implies {speed} (jump?)'
+                inc = None
+            else:
+                inc_reason = ''
+        if inc is not None:
+            guess = inc
+            lam = self._prior_information(inc)
+        else:
+            self._note('no odometry', f'scan at {t:.3f} s: no odometry increment '
+                       f'({inc_reason})')
+            guess = self._constant_velocity(dt)
+            lam = None
+        pred = _compose(self._pose, guess)
+
+        # --- ICP
+        res = None
+        icp_pose = None
+        info_icp = None
+        partial = 0
+        if n_pts < c.min_points:
+            why = f'too few valid points ({n_pts} < {c.min_points})'
+        elif self._map.n_points < c.min_points:
+            why = f'local map too small ({self._map.n_points} points)'
+        else:
+            res = icp.align(pts, self._map, pred, self._distances, c.kernel_ratio,
+                            c.steps_per_association, c.final_associations,
+                            converged_translation=c.converged_translation,
+                            converged_rotation=c.converged_rotation,
+                            coarse_stride=c.coarse_stride)
+            why = self._check(res)
+            if not why:
+                icp_pose, info_icp, partial, why = self._fuse(res, pred, lam)
+            if not why:
+                motion_icp = _between(self._pose, icp_pose)
+                speed = self._too_fast(motion_icp, dt)
+                if speed:
+                    why = f'match implies {speed}'
+                elif inc is not None:
+                    corr = _between(pred, icp_pose)
+                    dist = math.hypot(corr[0], corr[1])
+                    if (dist > c.max_correction_translation
+                            or abs(corr[2]) > c.max_correction_rotation):
+                        why = (f'match disagrees with odometry by {dist:.2f} m / '
+                               f'{math.degrees(abs(corr[2])):.1f} deg')
+
+        diag = {}
+        if res is not None:
+            diag = dict(inlier_ratio=res.inlier_ratio, rms=res.rms, iterations=res.iterations,
+                        min_eigenvalue=float(res.eigenvalues[0]))
+        if icp_pose is not None and not why:
+            motion = _between(self._pose, icp_pose)
+            if lam is not None:
+                cov = _inverse(info_icp + lam)
+            else:  # no odometry: a guess worth ten times the odometry noise
+                cov = _inverse(info_icp + 0.01 * self._prior_information(guess))
+            if partial and lam is not None:
+                source = SOURCE_PARTIAL
+                reason = f'{partial} degenerate direction(s): odometry along them'
+            elif partial:
+                source = SOURCE_PARTIAL
+                reason = (f'{partial} degenerate direction(s) and no odometry '
+                          f'({inc_reason}): constant-velocity guess along them')
+            else:
+                source = SOURCE_ICP
+                reason = 'icp' if inc is not None else f'icp without odometry ({inc_reason})'
+        elif inc is not None:
+            self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): odometry used')
+            motion, source, reason = inc, SOURCE_ODOMETRY, f'ICP refused: {why}'
+            cov = _inverse(lam)
+        else:
+            reason = f'ICP refused ({why}) and no odometry ({inc_reason})'
+            return self._none(scan, reason, n_pts, **diag)
+
+        self._pose = _compose(self._pose, motion)
+        self._stamp = t
+        self._odo, self._seg = (odo, seg) if odo is not None else (None, -1)
+        self._motion, self._dt = motion, dt
+        self._lost = 0
+        self._add_to_map(pts)
+        self.stats[source] += 1
+        return EgoMotionEstimate(stamp=t, pose=self._pose.copy(), motion=motion,
+                                 covariance=cov, source=source, reason=reason, dt=dt,
+                                 odometry_motion=inc, n_points=n_pts, **diag)
+
+    # ------------------------------------------------------------------- internals
+
+    def _reset_state(self) -> None:
+        self._map.clear()
+        self._pose: np.ndarray | None = None
+        self._stamp: float | None = None
+        self._odo: np.ndarray | None = None
+        self._seg = -1
+        self._motion: np.ndarray | None = None
+        self._dt = 0.0
+        self._lost = 0
+
+    def _note(self, kind: str, message: str, level: int = logging.WARNING) -> None:
+        """Log ``message``: first time, then at the 10th, 100th, ... time for its kind."""
+        self._notes[kind] += 1
+        self.stats[f'note: {kind}'] += 1
+        n = self._notes[kind]
+        if n == 1 or (n >= 10 and math.log10(n).is_integer()):
+            log.log(level, '%s%s', message, f' ({n} times so far)' if n > 1 else '')
+        else:
+            log.debug('%s', message)
+
+    def _points(self, scan: Scan) -> np.ndarray:
+        c = self.config
+        r = scan.ranges
+        mask = scan.valid()
+        with np.errstate(invalid='ignore'):
+            mask &= (r >= c.min_range) & (r <= c.max_range)
+        idx = np.flatnonzero(mask)
+        if idx.size > c.max_points:
+            idx = idx[::-(-idx.size // c.max_points)]
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
+                                 scan.n_beams)
+        rr = r[idx]
+        return np.column_stack((rr * cos[idx], rr * sin[idx]))
+
+    def _add_to_map(self, pts: np.ndarray) -> None:
+        if pts.shape[0] < 2:
+            return
+        nrm, ok = icp.scan_normals(pts, self.config.normal_max_gap)
+        self._map.add(self._pose, pts[ok], nrm[ok])
+        self._map.build()
+
+    def _init(self, scan, pts, odo, seg, odo_reason) -> EgoMotionEstimate:
+        self._map.clear()
+        if odo is not None:
+            self._pose, reason = odo.copy(), 'first scan: pose from odometry'
+        else:
+            self._pose, reason = np.zeros(3), f'first scan: pose at the origin ({odo_reason})'
+        self._stamp = float(scan.stamp)
+        self._odo, self._seg = (odo, seg) if odo is not None else (None, -1)
+        self._motion, self._dt, self._lost = None, 0.0, 0
+        self._add_to_map(pts)
+        self.stats[SOURCE_INIT] += 1
+        return EgoMotionEstimate(stamp=self._stamp, pose=self._pose.copy(), motion=np.zeros(3),
+                                 covariance=np.zeros((3, 3)), source=SOURCE_INIT,
+                                 reason=reason, n_points=pts.shape[0])
+
+    def _none(self, scan, reason, n_pts, lost=True, **diag) -> EgoMotionEstimate:
+        self._note('no pose', f'scan at {scan.stamp:.3f} s has no pose: {reason}')
+        self.stats[SOURCE_NONE] += 1
+        self._lost += int(lost)
+        if self._lost >= self.config.max_lost_scans and self._pose is not None:
+            self._note('lost', f'{self._lost} scans without a pose: the local map restarts '
+                       f'at the next scan')
+            self._reset_state()
+        nan3 = np.full(3, np.nan)
+        return EgoMotionEstimate(stamp=float(scan.stamp), pose=nan3, motion=nan3.copy(),
+                                 covariance=np.full((3, 3), np.nan), source=SOURCE_NONE,
+                                 reason=reason, n_points=n_pts, **diag)
+
+    def _constant_velocity(self, dt: float) -> np.ndarray:
+        if self._motion is None or self._dt <= 0.0:
+            return np.zeros(3)
+        f = min(dt / self._dt, 3.0)
+        return self._motion * f
+
+    def _prior_information(self, inc) -> np.ndarray:
+        c = self.config
+        sxy = c.odom_sigma_xy + c.odom_sigma_xy_per_m * math.hypot(inc[0], inc[1])
+        sth = c.odom_sigma_theta + c.odom_sigma_theta_per_rad * abs(inc[2])
+        return np.diag([1.0 / sxy ** 2, 1.0 / sxy ** 2, 1.0 / sth ** 2])
+
+    def _too_fast(self, motion, dt) -> str:
+        c = self.config
+        if dt <= 0.0:
+            return ''
+        v = math.hypot(motion[0], motion[1]) / dt
+        w = abs(motion[2]) / dt
+        if v > c.max_translation_speed:
+            return f'{v:.2f} m/s > {c.max_translation_speed:g} m/s'
+        if w > c.max_rotation_speed:
+            return f'{math.degrees(w):.0f} deg/s > {math.degrees(c.max_rotation_speed):.0f} deg/s'
+        return ''
+
+    def _check(self, res: icp.IcpResult) -> str:
+        c = self.config
+        if res.n_inliers < c.min_points:
+            return f'only {res.n_inliers} points matched'
+        if res.inlier_ratio < c.min_inlier_ratio:
+            return f'overlap {100 * res.inlier_ratio:.0f} % < {100 * c.min_inlier_ratio:.0f} %'
+        if not math.isfinite(res.rms) or res.rms > c.max_rms:
+            return f'residual {res.rms:.3f} m > {c.max_rms:g} m'
+        if not res.converged:
+            return 'did not converge'
+        if not np.all(np.isfinite(res.pose)):
+            return 'non-finite result'
+        return ''
+
+    def _fuse(self, res: icp.IcpResult, pred, lam):
+        """ICP pose fused with the prediction; returns (pose, icp information, n_deg, why).
+
+        ``lam`` is the odometry prior's information (None without odometry: then ICP stands
+        alone and degenerate directions keep the prediction, a constant-velocity guess).
+        """
+        c = self.config
+        sv = np.array([1.0, 1.0, 1.0 / res.scale])
+        evals = res.eigenvalues
+        deg = evals < c.degeneracy_threshold
+        n_deg = int(np.count_nonzero(deg))
+        if n_deg == 3:
+            return None, None, 0, 'degenerate in every direction'
+        # information of the ICP pose: H / (sum w * model_sigma^2), scanner-frame perturbation
+        info = res.hessian / (max(res.sum_weights, 1e-12) * c.icp_model_sigma ** 2)
+        pose = res.pose
+        if lam is not None:
+            d = _between(pose, pred)
+            pose = _compose(pose, np.linalg.solve(info + lam, lam @ d))
+        if n_deg:
+            # along degenerate directions (scaled coordinates z = delta / sv): the prediction
+            z = _between(pred, pose) / sv
+            u = res.eigenvectors[:, ~deg]
+            pose = _compose(pred, sv * (u @ (u.T @ z)))
+            # no ICP information along them
+            v = res.eigenvectors[:, deg]
+            proj = np.eye(3) - v @ v.T
+            s_inv = np.diag(1.0 / sv)
+            info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
+        return pose, info, n_deg, ''
+
+
+def _inverse(info) -> np.ndarray:
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(info)
+    return 0.5 * (cov + cov.T)
+
+
+# ---------------------------------------------------------------------------- offline
+
+
+def estimate_track(scans: Iterable[Scan], odometry=None,
+                   config: EgoMotionConfig | None = None) -> list[EgoMotionEstimate]:
+    """Run the estimator over ``scans`` with ``odometry`` (a PoseTrack or ``(stamps, poses)``).
+
+    Odometry samples are fed in time order, each before the first scan that could need it
+    (stamp <= scan stamp + latency + max gap), as a live node would have received them.
+    """
+    est = EgoMotionEstimator(config)
+    c = est.config
+    if odometry is None:
+        stamps, poses = np.zeros(0), np.zeros((0, 3))
+    elif hasattr(odometry, 'stamps'):
+        stamps, poses = np.asarray(odometry.stamps, float), np.asarray(odometry.poses, float)
+    else:
+        stamps, poses = (np.asarray(a, float) for a in odometry)
+    order = np.argsort(stamps, kind='stable')
+    stamps, poses = stamps[order], poses[order]
+    k = 0
+    out = []
+    for scan in scans:
+        horizon = scan.stamp + c.odom_latency + c.odom_max_gap
+        while k < stamps.size and stamps[k] <= horizon:
+            est.add_odometry(stamps[k], poses[k])
+            k += 1
+        out.append(est.update(scan))
+    return out

@@ -1,0 +1,255 @@
+"""CARMEN log reading and ``laser-tracker import-carmen``: real logs reproduced scan for scan,
+small synthetic logs for the geometry, the no-return value and every kind of bad input."""
+from __future__ import annotations
+
+import gzip
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from laser_tracker.cli import main
+from laser_tracker.errors import InputFileError
+from laser_tracker.io.bag import read_odometry, read_scans, topics
+from laser_tracker.io.carmen import detect_max_reading, flaser_geometry, read_carmen
+
+DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'carmen'
+
+
+def _real(name: str) -> Path:
+    path = DATA / name
+    if not path.exists():
+        pytest.skip(f'../shared/data/carmen/{name} not found (real data lives beside the repo)')
+    return path
+
+
+def _lines(path: Path):
+    opener = gzip.open if path.suffix == '.gz' else open
+    with opener(path, 'rt') as fh:
+        for line in fh:
+            yield line.split()
+
+
+def _flaser_line(n, ranges, pose=(1.0, 2.0, 0.5), odom=(1.1, 2.1, 0.4), stamp=100.0):
+    vals = ' '.join(f'{r:.2f}' for r in ranges)
+    return (f'FLASER {n} {vals} {pose[0]} {pose[1]} {pose[2]} {odom[0]} {odom[1]} {odom[2]} '
+            f'{stamp:.6f} testhost {stamp + 0.01:.6f}\n')
+
+
+def _odom_line(x, y, th, stamp, tv=0.3, rv=0.1):
+    return f'ODOM {x} {y} {th} {tv} {rv} 0.0 {stamp:.6f} testhost {stamp:.6f}\n'
+
+
+def _write_log(path: Path, n_scans=5, n_beams=181, odom=True, extra='') -> Path:
+    rng = np.random.default_rng(0)
+    text = ['# CARMEN Logfile\n', '# message formats defined: PARAM SYNC ODOM FLASER\n',
+            'PARAM robot_frontlaser_offset 0.0 nohost 0\n']
+    for i in range(n_scans):
+        if odom:
+            text.append(_odom_line(0.1 * i, 0.0, 0.01 * i, 100.0 + i - 0.05))
+        r = np.round(rng.uniform(0.5, 20.0, n_beams), 2)
+        r[::17] = 81.91  # no return
+        text.append(_flaser_line(n_beams, r, pose=(0.1 * i, 0.0, 0.01 * i),
+                                 odom=(0.2 * i, 0.05, 0.02 * i), stamp=100.0 + i))
+    text.append(extra)
+    path.write_text(''.join(text))
+    return path
+
+
+def _cli(capsys, *argv):
+    status = main(['import-carmen', *map(str, argv)])
+    return status, capsys.readouterr()
+
+
+# -------------------------------------------------------------------------- reading
+
+
+def test_flaser_beam_geometry_conventions():
+    assert flaser_geometry(181) == (-math.pi / 2, math.pi / 180)
+    assert flaser_geometry(361) == (-math.pi / 2, math.pi / 360)
+    # CARMEN's 180-beam convention: 1 degree steps from -90 (last beam at +89 deg)
+    assert flaser_geometry(180) == (-math.pi / 2, math.pi / 180)
+
+
+def test_read_synthetic_log(tmp_path):
+    path = _write_log(tmp_path / 'a.log', n_scans=4, n_beams=181)
+    log = read_carmen(path)
+    assert log.kind == 'FLASER' and len(log) == 4 and log.n_beams == 181
+    assert log.range_max == pytest.approx(81.91)
+    np.testing.assert_allclose(log.stamps, [100.0, 101.0, 102.0, 103.0])
+    np.testing.assert_allclose(log.laser_poses[2], (0.2, 0.0, 0.02))
+    np.testing.assert_allclose(log.odom_poses[3], (0.6, 0.05, 0.06))
+    assert log.odom_stamps.size == 4 and log.odom_velocities[0, 0] == pytest.approx(0.3)
+    assert log.skipped == {'PARAM': 1}
+    scan = log.scan(1)
+    assert np.isposinf(scan.ranges[::17]).all()          # no return -> +inf (REP 117)
+    assert not scan.valid()[::17].any()
+    assert np.isfinite(np.delete(scan.ranges, np.arange(0, 181, 17))).all()
+    assert scan.angle_min == pytest.approx(-math.pi / 2)
+    assert scan.angle_min + 180 * scan.angle_increment == pytest.approx(math.pi / 2)
+
+
+def test_max_reading_detection_and_override(tmp_path):
+    r = np.array([[1.0, 50.0, 2.0], [50.0, 3.0, 49.9]])
+    assert detect_max_reading(r) == 50.0
+    assert detect_max_reading(np.array([[1.0, 2.0, 3.0]])) is None  # no repeated maximum
+    path = _write_log(tmp_path / 'b.log', n_scans=2)
+    log = read_carmen(path, max_reading=15.0)
+    assert log.range_max == 15.0
+    assert (np.isposinf(log.scan_ranges()) == (log.ranges >= 15.0 - 0.005)).all()
+
+
+def test_robotlaser1_lines_carry_their_geometry(tmp_path):
+    ranges = ' '.join(['2.50'] * 10)
+    line = (f'ROBOTLASER1 0 -0.7854 1.5708 0.174533 8.0 0.1 0 10 {ranges} 0 '
+            f'1.0 2.0 0.3 0.9 2.0 0.3 0.2 0.0 0.5 0.3 0.0 42.5 host 42.6\n')
+    path = tmp_path / 'r.log'
+    path.write_text(line + line.replace('42.5 host', '42.7 host'))
+    log = read_carmen(path)
+    assert log.kind == 'ROBOTLASER1' and len(log) == 2
+    assert log.angle_min == pytest.approx(-0.7854)
+    assert log.angle_increment == pytest.approx(0.174533)
+    assert log.range_max == 8.0
+    np.testing.assert_allclose(log.laser_poses[0], (1.0, 2.0, 0.3))
+    np.testing.assert_allclose(log.odom_poses[0], (0.9, 2.0, 0.3))
+    np.testing.assert_allclose(log.stamps, [42.5, 42.7])
+
+
+# --------------------------------------------------------------------- real logs
+
+
+@pytest.mark.parametrize('name', ['intel-corrected.log.gz', 'mit-csail.clf'])
+def test_import_reproduces_scan_count_and_ranges(tmp_path, capsys, name):
+    path = _real(name)
+    flaser = [t for t in _lines(path) if t and t[0] == 'FLASER']
+    odom = [t for t in _lines(path) if t and t[0] == 'ODOM']
+    out = tmp_path / 'bag'
+    status, cap = _cli(capsys, path, out)
+    assert status == 0, cap.err
+    info = topics(out)
+    assert info['/scan'][1] == len(flaser)
+    assert info['/odom'][1] == (len(odom) if odom else len(flaser))
+    scans = list(read_scans(out))
+    assert len(scans) == len(flaser)
+    # the bag is in time order; the log may not be: match scans to lines by stamp
+    by_stamp = {round(float(t[2 + int(t[1]) + 6]), 6): t for t in flaser}
+    logged_max = max(float(v) for t in flaser for v in t[2:2 + int(t[1])])
+    checked = 0
+    for scan in scans[::25]:
+        t = by_stamp[round(scan.stamp, 6)]
+        n = int(t[1])
+        logged = np.array(t[2:2 + n], dtype=float)
+        assert scan.n_beams == n
+        no_return = logged >= logged_max - 0.005
+        assert np.isposinf(scan.ranges[no_return]).all()
+        np.testing.assert_allclose(scan.ranges[~no_return], logged[~no_return], atol=1e-5)
+        assert scan.range_max == pytest.approx(logged_max, abs=1e-4)
+        checked += 1
+    assert checked >= len(flaser) // 25
+    assert scans[0].angle_min == pytest.approx(-math.pi / 2, abs=1e-6)
+    stamps = [s.stamp for s in scans]
+    assert stamps == sorted(stamps)
+
+
+def test_import_without_odom_lines_uses_flaser_odometry(tmp_path, capsys):
+    path = _write_log(tmp_path / 'no_odom.log', n_scans=3, odom=False)
+    status, cap = _cli(capsys, path, tmp_path / 'bag')
+    assert status == 0, cap.err
+    assert 'from FLASER lines' in cap.out
+    track = read_odometry(tmp_path / 'bag')
+    np.testing.assert_allclose(track.poses[:, :2], [[0.0, 0.05], [0.2, 0.05], [0.4, 0.05]],
+                               atol=1e-9)
+    np.testing.assert_allclose(track.stamps, [100.0, 101.0, 102.0])
+
+
+def test_out_of_order_odometry_written_in_time_order(tmp_path, capsys):
+    extra = _odom_line(9.0, 9.0, 0.0, 100.5) + _odom_line(8.0, 8.0, 0.0, 100.2)
+    path = _write_log(tmp_path / 'ooo.log', n_scans=3, extra=extra)
+    status, cap = _cli(capsys, path, tmp_path / 'bag')
+    assert status == 0, cap.err
+    track = read_odometry(tmp_path / 'bag')
+    assert list(track.stamps) == sorted(track.stamps) and len(track) == 5
+    assert track.poses[list(track.stamps).index(100.2), 0] == pytest.approx(8.0)
+
+
+# ------------------------------------------------------------------------ bad input
+
+
+def _assert_failed(status, cap, out: Path, path: Path, line: int):
+    assert status != 0
+    assert str(path) in cap.err and f'line {line}' in cap.err
+    assert not out.exists()
+    assert not any(p.name.startswith(f'.{out.name}.') for p in out.parent.iterdir())
+
+
+def test_malformed_number_names_file_and_line(tmp_path, capsys):
+    path = _write_log(tmp_path / 'bad.log', n_scans=3)
+    lines = path.read_text().splitlines(keepends=True)
+    target = next(i for i, ln in enumerate(lines) if ln.startswith('FLASER') and i > 5)
+    lines[target] = lines[target].replace(' 81.91 ', ' 8x.91 ', 1)
+    path.write_text(''.join(lines))
+    out = tmp_path / 'out'
+    status, cap = _cli(capsys, path, out)
+    _assert_failed(status, cap, out, path, target + 1)
+    assert "'8x.91' is not a number" in cap.err
+
+
+def test_line_cut_short_names_file_and_line(tmp_path, capsys):
+    path = _write_log(tmp_path / 'cut.log', n_scans=3)
+    text = path.read_text()
+    path.write_text(text + 'FLASER 181 1.0 2.0 3.0\n')
+    n_lines = len(path.read_text().splitlines())
+    out = tmp_path / 'out'
+    status, cap = _cli(capsys, path, out)
+    _assert_failed(status, cap, out, path, n_lines)
+    assert 'needs 190 or 192 fields' in cap.err
+
+
+def test_bad_odom_line_names_file_and_line(tmp_path, capsys):
+    path = _write_log(tmp_path / 'odom.log', n_scans=2, extra='ODOM 1 2\n')
+    n_lines = len(path.read_text().splitlines())
+    out = tmp_path / 'out'
+    status, cap = _cli(capsys, path, out)
+    _assert_failed(status, cap, out, path, n_lines)
+
+
+def test_truncated_gzip_names_file_and_line(tmp_path, capsys):
+    plain = _write_log(tmp_path / 'full.log', n_scans=40)
+    data = gzip.compress(plain.read_bytes())
+    path = tmp_path / 'trunc.log.gz'
+    path.write_bytes(data[: len(data) * 2 // 3])
+    out = tmp_path / 'out'
+    status, cap = _cli(capsys, path, out)
+    assert status != 0
+    assert str(path) in cap.err and 'line ' in cap.err
+    assert 'truncated' in cap.err or 'needs' in cap.err
+    assert not out.exists()
+    with pytest.raises(InputFileError) as info:
+        read_carmen(path)
+    assert info.value.location.startswith('line ')
+
+
+def test_changing_beam_count_and_no_laser_lines_are_errors(tmp_path):
+    path = _write_log(tmp_path / 'mixed.log', n_scans=2, n_beams=181)
+    path.write_text(path.read_text() + _flaser_line(361, [1.0] * 361, stamp=200.0))
+    with pytest.raises(InputFileError, match='361 beams after 181-beam scans'):
+        read_carmen(path)
+    empty = tmp_path / 'empty.log'
+    empty.write_text('# nothing\nODOM 0 0 0 0 0 0 1.0 h 1.0\n')
+    with pytest.raises(InputFileError, match='no FLASER or ROBOTLASER1 lines'):
+        read_carmen(empty)
+    with pytest.raises(InputFileError, match='no such file'):
+        read_carmen(tmp_path / 'missing.log')
+
+
+def test_existing_output_is_left_alone(tmp_path, capsys):
+    path = _write_log(tmp_path / 'ok.log', n_scans=2)
+    out = tmp_path / 'out'
+    out.mkdir()
+    (out / 'keep.txt').write_text('mine')
+    status, cap = _cli(capsys, path, out)
+    assert status != 0 and 'already exists' in cap.err
+    assert (out / 'keep.txt').read_text() == 'mine'
+    status, cap = _cli(capsys, path, out, '--overwrite')
+    assert status == 0 and topics(out)['/scan'][1] == 2

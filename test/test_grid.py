@@ -1,0 +1,186 @@
+"""Occupancy grid: ray casting (FREE / OCCUPIED / UNKNOWN), the previous grid in the current
+frame, and the difference map (Equation 1)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_tracker.core.difference import DifferenceConfig, changed_cells, difference_map
+from laser_tracker.core.grid import (FREE, OCCUPIED, PAD, UNKNOWN, GridBuilder, GridConfig,
+                                     build_grid, lookup_previous, transform_grid)
+from laser_tracker.core.scan import Scan
+
+RES = 0.1
+CFG = GridConfig(resolution=RES, size=8.0, free_margin=0.1, no_return_free=3.0,
+                 free_erosion=0)
+N = CFG.cells  # 80 cells, the scanner at the grid centre
+
+
+def cell_of(x, y, n=N, res=RES):
+    return int(math.floor(x / res + n / 2)), int(math.floor(y / res + n / 2))
+
+
+def scan_180(ranges, stamp=0.0, range_max=8.0):
+    ranges = np.asarray(ranges, dtype=float)
+    n = ranges.size
+    return Scan(stamp=stamp, ranges=ranges, angle_min=-math.pi / 2,
+                angle_increment=math.pi / (n - 1), range_min=0.05, range_max=range_max)
+
+
+def test_ray_casting_marks_free_occupied_and_unknown():
+    ranges = np.full(181, 3.0)             # 1 deg beams: a circle of returns at 3 m ...
+    ranges[85:96] = 2.0                    # ... an object straight ahead at 2 m ...
+    ranges[150:] = np.nan                  # ... and no information left of 60 deg
+    grid = build_grid(scan_180(ranges), CFG)
+    assert grid.shape == (N, N)
+    # The cells of the returns are occupied.
+    assert grid[cell_of(2.0, 0.0)] == OCCUPIED
+    assert grid[cell_of(3.0, 0.0)] != OCCUPIED        # hidden behind the object
+    assert grid[cell_of(0.0, -3.0)] == OCCUPIED
+    # Cells the beams passed through are free ...
+    for x, y in ((0.35, 0.02), (1.05, 0.02), (1.75, -0.02), (2.0, 1.2), (0.5, -2.5)):
+        assert grid[cell_of(x, y)] == FREE, (x, y)
+    # ... but not within free_margin of a return, nor in the object's shadow, nor behind
+    # the 3 m circle, nor where the beams returned nothing, nor behind the scanner.
+    assert grid[cell_of(1.95, 0.02)] in (OCCUPIED, UNKNOWN)
+    for x, y in ((2.45, 0.02), (2.9, -0.1), (3.5, 0.5), (0.5, 2.0), (-1.0, 0.0)):
+        assert grid[cell_of(x, y)] == UNKNOWN, (x, y)
+
+
+def test_no_return_beams_free_space_up_to_no_return_free():
+    ranges = np.full(181, np.inf)           # nothing returned anywhere
+    grid = build_grid(scan_180(ranges), CFG)
+    assert grid[cell_of(2.5, 0.0)] == FREE
+    assert grid[cell_of(0.0, 2.5)] == FREE                      # +y, the last beam
+    assert grid[cell_of(3.5, 0.0)] == UNKNOWN                   # beyond no_return_free
+    assert not (grid == OCCUPIED).any()
+    none_free = build_grid(scan_180(ranges), GridConfig(size=8.0, no_return_free=0.0))
+    assert not (none_free == FREE).any()
+
+
+def test_free_ranges_match_scan_semantics():
+    """The grid's one-pass free ranges follow Scan.free_ranges: NaN, negative and below
+    range_min free nothing, inf / >= range_max free up to no_return_free."""
+    ranges = np.array([np.nan, -1.0, 0.01, 1.0, np.inf, 8.0, 2.5] * 20 + [1.0])
+    scan = scan_180(ranges)
+    builder = GridBuilder(CFG)
+    builder.build(scan)
+    expected = scan.free_ranges(CFG.no_return_free)
+    assert np.allclose(builder._ext[:ranges.size], expected.astype(np.float32))
+
+
+def test_free_erosion_keeps_cells_beside_a_short_beam_from_being_free():
+    ranges = np.full(181, 3.0)
+    ranges[90] = 1.0                          # one short beam straight ahead
+    plain = build_grid(scan_180(ranges), CFG)
+    eroded = build_grid(scan_180(ranges), GridConfig(size=8.0, no_return_free=3.0,
+                                                     free_erosion=1))
+    # At 2 m the neighbouring beams' cells (1 deg ~ 3.5 cm apart) are free without erosion;
+    # with it their free range is bounded by the short beam.
+    ij = cell_of(2.05, 0.05)
+    assert plain[ij] == FREE
+    assert eroded[ij] == UNKNOWN
+    assert eroded[cell_of(2.05, 0.6)] == FREE
+
+
+def test_beam_count_change_uses_a_new_ray_table():
+    builder = GridBuilder(CFG)
+    g1 = builder.build(scan_180(np.full(361, 2.0))).grid.copy()
+    g2 = builder.build(scan_180(np.full(181, 2.0))).grid.copy()
+    g3 = builder.build(scan_180(np.full(512, 2.0))).grid.copy()
+    for g in (g1, g2, g3):
+        assert g[cell_of(1.0, 0.0)] == FREE
+        assert g[cell_of(0.0, 1.99)] == OCCUPIED or g[cell_of(0.0, 1.95)] == OCCUPIED
+        assert g[cell_of(2.5, 0.0)] == UNKNOWN
+
+
+def test_full_circle_scanner_sees_behind():
+    n = 360
+    scan = Scan(stamp=0.0, ranges=np.full(n, 2.0), angle_min=-math.pi,
+                angle_increment=2 * math.pi / n, range_min=0.05, range_max=8.0)
+    grid = build_grid(scan, CFG)
+    assert grid[cell_of(-1.0, 0.0)] == FREE
+    assert grid[cell_of(-1.0, 0.05)] == FREE
+
+
+def _grid_with(cells):
+    g = np.full((N, N), UNKNOWN, np.uint8)
+    for ij, v in cells.items():
+        g[ij] = v
+    return g
+
+
+def test_transform_moves_a_known_cell_by_the_motion():
+    previous = _grid_with({cell_of(2.05, 0.05): OCCUPIED})
+    # The scanner moved 0.5 m forward: the obstacle is now 0.5 m closer.
+    moved = transform_grid(previous, (0.5, 0.0, 0.0), RES)
+    assert moved[cell_of(1.55, 0.05)] == OCCUPIED
+    assert (moved == OCCUPIED).sum() == 1
+    # The scanner turned 90 deg left: the obstacle ahead is now on its right (-y).
+    turned = transform_grid(previous, (0.0, 0.0, math.pi / 2), RES)
+    assert turned[cell_of(0.05, -2.05)] == OCCUPIED
+    # Cells that come from outside the previous grid are unknown.
+    free = np.full((N, N), FREE, np.uint8)
+    shifted = transform_grid(free, (1.0, 0.0, 0.0), RES)
+    assert (shifted[-10:, :] == UNKNOWN).all()
+    assert (shifted[:-10, :] == FREE).all()
+
+
+@pytest.mark.parametrize('motion', [(0.0, 0.0, 0.0), (0.23, -0.11, 0.0), (0.05, 0.3, 0.2),
+                                    (-0.4, 0.17, -0.9), (1.3, 2.2, 3.0)])
+def test_sparse_lookup_agrees_with_affine_transform(motion):
+    rng = np.random.default_rng(3)
+    previous = rng.integers(0, 3, size=(N, N)).astype(np.uint8)
+    whole = transform_grid(previous, motion, RES)
+    flat = rng.choice(N * N, 400, replace=False)
+    looked = lookup_previous(previous, motion, RES, flat)[:, 0]
+    assert np.array_equal(looked, whole.reshape(-1)[flat])
+    around = lookup_previous(previous, motion, RES, flat, neighbourhood=2)
+    assert around.shape == (400, 9)
+
+
+def test_difference_map_equation_1():
+    g = _grid_with({(1, 1): OCCUPIED, (1, 2): OCCUPIED, (1, 3): OCCUPIED, (1, 4): FREE,
+                    (1, 5): UNKNOWN})
+    gp = _grid_with({(1, 1): FREE, (1, 2): OCCUPIED, (1, 3): UNKNOWN, (1, 4): OCCUPIED,
+                     (1, 5): FREE})
+    d = difference_map(g, gp)
+    # Only occupied-now-and-free-before is a change; unknown before is not; a cell that
+    # became free (an object leaving) is not.
+    assert d[1, 1] and not d[1, 2] and not d[1, 3] and not d[1, 4] and not d[1, 5]
+    assert d.sum() == 1
+
+
+def test_sparse_difference_equals_equation_1_on_whole_grids():
+    """Detection's per-scan path (Eq. 1 at occupied cells only) equals Eq. 1 on grids."""
+    rng = np.random.default_rng(7)
+    builder = GridBuilder(CFG)
+    r1 = 2.0 + rng.normal(0, 0.3, 181)
+    r2 = r1.copy()
+    r2[60:70] -= 0.8                            # something moved into free space
+    f1 = builder.build(scan_180(r1))
+    prev = f1.grid.copy()
+    prev_padded = f1.padded.copy()
+    motion = (0.07, -0.03, 0.02)
+    f2 = builder.build(scan_180(r2, stamp=0.2))
+    changed = changed_cells(f2.ij, prev_padded, motion, RES, DifferenceConfig())
+    sparse = np.zeros(N * N, bool)
+    sparse[f2.flat[changed]] = True
+    whole = difference_map(f2.grid, transform_grid(prev, motion, RES)).reshape(-1)
+    assert sparse.any()
+    assert np.array_equal(sparse, whole)
+
+
+def test_neighbourhood_tolerance_needs_free_neighbours():
+    prev = _grid_with({(10, 10): FREE, (11, 10): FREE, (9, 10): FREE, (10, 11): FREE,
+                       (10, 9): OCCUPIED, (20, 20): FREE, (21, 20): FREE, (19, 20): FREE,
+                       (20, 21): FREE, (20, 19): FREE})
+    padded = np.pad(prev, PAD, constant_values=UNKNOWN)
+    ij = np.array([[10.0, 10.0], [20.0, 20.0]])
+    paper = changed_cells(ij, padded, (0, 0, 0), RES, DifferenceConfig(free_neighbourhood=0))
+    tolerant = changed_cells(ij, padded, (0, 0, 0), RES,
+                             DifferenceConfig(free_neighbourhood=1))
+    assert paper.tolist() == [True, True]
+    assert tolerant.tolist() == [False, True]

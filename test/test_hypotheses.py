@@ -1,0 +1,188 @@
+"""Hypothesis creation (Eq. 2) and management (Eq. 3, splitting, coasting, wall penalty,
+removal, merging, the bound) on hand-made blobs."""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pytest
+
+from laser_tracker.core.blobs import Blobs
+from laser_tracker.core.hypotheses import HypothesisConfig, Tracker
+from laser_tracker.core.kalman import KalmanConfig
+
+DT = 0.2
+
+
+def frame(t, *points, structure=None):
+    xy = np.array(points, dtype=float).reshape(-1, 2)
+    s = np.full(xy.shape[0], np.nan) if structure is None else np.asarray(structure, float)
+    return Blobs(stamp=t, origin=np.zeros(3), xy=xy, cells=np.full(xy.shape[0], 2),
+                 extent=np.full(xy.shape[0], 0.1), structure=s)
+
+
+def walk(tracker, n, start=(1.0, 0.0), v=(1.0, 0.0), t0=0.0):
+    results = []
+    for k in range(n):
+        t = t0 + k * DT
+        results.append(tracker.update(frame(t, (start[0] + v[0] * t, start[1] + v[1] * t))))
+    return results
+
+
+def test_a_moving_blob_creates_a_hypothesis_confirmed_after_m_samples():
+    tr = Tracker(HypothesisConfig(), KalmanConfig())
+    res = walk(tr, 8)
+    assert len(res[0].hypotheses) == 0                    # one location: nothing yet
+    assert res[1].created == 1                            # seen in two locations
+    h = res[1].hypotheses
+    assert np.allclose(h.velocity[0], [1.0, 0.0]) and h.samples[0] == 1
+    assert not h.confirmed[0]
+    confirmed_at = [k for k, r in enumerate(res) if r.newly_confirmed.size]
+    assert confirmed_at == [4]                            # creation + 3 supports = 4 samples
+    last = res[-1].hypotheses
+    assert len(last) == 1 and last.confirmed[0]
+    assert np.allclose(last.velocity[0], [1.0, 0.0], atol=1e-6)
+    assert np.allclose(last.position[0], [1.0 + 7 * DT, 0.0])
+    assert tr.stats['created'] == 1
+
+
+def test_equation_3_weight_change_in_cells():
+    cfg = HypothesisConfig()
+    tr = Tracker(cfg, KalmanConfig())
+    tr.update(frame(0.0, (1.0, 0.0)))
+    tr.update(frame(DT, (1.2, 0.0)))                      # created: v = 1 m/s, weight 20
+    assert tr.hyp.weight[0] == pytest.approx(cfg.initial_weight)
+    # Prediction (1.4, 0); the blob 0.2 m (2 cells) off: 20 + 60 - 15 * 2 = 50.
+    tr.update(frame(2 * DT, (1.4, 0.2)))
+    assert tr.hyp.weight[0] == pytest.approx(20 + 60 - 15 * 2)
+    # Clipped at 100.
+    for k in range(3, 6):
+        pred = tr.filter.predict(tr.hyp.state, tr.hyp.t_state, k * DT)[0]
+        tr.update(frame(k * DT, pred))
+    assert tr.hyp.weight[0] == pytest.approx(100.0)
+
+
+def test_equation_2_blobs_near_hypotheses_are_not_new():
+    cfg = HypothesisConfig()
+    tr = Tracker(cfg, KalmanConfig())
+    tr.update(frame(0.0, (1.0, 0.0)))
+    tr.update(frame(DT, (1.2, 0.0)))                      # hypothesis predicting (1.4, 0)
+    # Next frame: the supporting blob, a blob 1 m off the prediction (weight 100 - 40 = 60:
+    # not above the threshold) and one 4 m away (weight 100 - 10 = 90: new). Previous blob
+    # for the far one's pair: none within max_speed * dt, so nothing is created yet.
+    r = tr.update(frame(2 * DT, (1.4, 0.0), (1.4, 1.0), (1.4, 4.0)))
+    assert r.created == 0
+    # The far blob moves on: it is new and pairs with its previous position.
+    r = tr.update(frame(3 * DT, (1.6, 0.0), (1.4, 1.0), (1.6, 4.1)))
+    born = r.hypotheses.take(r.hypotheses.samples == 1)
+    assert r.created == 1 and np.allclose(born.position, [[1.6, 4.1]])
+
+
+def test_split_on_two_legs_keeps_the_id_on_the_nearest():
+    tr = Tracker(HypothesisConfig(), KalmanConfig())
+    walk(tr, 6)                                           # one confirmed hypothesis
+    (tid,) = tr.hyp.track_id
+    t = 6 * DT
+    pred = tr.filter.predict(tr.hyp.state, tr.hyp.t_state, t)[0]
+    r = tr.update(frame(t, pred + [0.05, 0.0], pred + [-0.1, 0.45]))
+    h = r.hypotheses
+    assert len(h) == 2 and tr.stats['splits'] == 1
+    keeper = h.track_id == tid
+    assert keeper.sum() == 1
+    assert np.allclose(h.position[keeper][0], pred + [0.05, 0.0])
+    assert h.confirmed[keeper][0] and not h.confirmed[~keeper][0]
+    assert h.samples[~keeper][0] == 1                     # the copy earns its own samples
+
+
+def test_coasting_through_a_short_occlusion_keeps_the_track():
+    cfg = HypothesisConfig()
+    tr = Tracker(cfg, KalmanConfig())
+    walk(tr, 6)
+    (tid,) = tr.hyp.track_id
+    w0 = tr.hyp.weight[0]
+    for k in (6, 7):                                      # occluded for two frames
+        r = tr.update(frame(k * DT))
+        h = r.hypotheses
+        assert h.track_id.tolist() == [tid] and h.confirmed[0] and not h.supported[0]
+        assert np.allclose(h.position[0], [1.0 + k * DT, 0.0])   # projected along its path
+    assert tr.hyp.weight[0] == pytest.approx(w0 - 2 * cfg.coast_penalty)
+    r = tr.update(frame(8 * DT, (1.0 + 8 * DT, 0.0)))     # back on the predicted path
+    assert r.hypotheses.track_id.tolist() == [tid] and r.hypotheses.supported[0]
+
+
+def test_removal_when_the_weight_falls_below_the_threshold():
+    cfg = HypothesisConfig(coast_penalty=15.0, remove_below=10.0)
+    tr = Tracker(cfg, KalmanConfig())
+    walk(tr, 2)                                           # weight 20
+    tr.update(frame(2 * DT))                              # 5 < 10: removed
+    assert len(tr.hyp) == 0
+
+
+def test_wall_penalty_halves_a_hypothesis_moving_along_structure():
+    cfg = HypothesisConfig()
+    along = Tracker(cfg, KalmanConfig())
+    across = Tracker(cfg, KalmanConfig())
+    plain = Tracker(cfg, KalmanConfig())
+    for tr, s in ((along, 0.0), (across, math.pi / 2), (plain, np.nan)):
+        tr.update(frame(0.0, (1.0, 0.0)))
+        tr.update(frame(DT, (1.2, 0.0), structure=[s]))    # moving along +x
+    assert plain.hyp.weight[0] == pytest.approx(cfg.initial_weight)
+    assert along.hyp.weight[0] == pytest.approx(cfg.initial_weight * cfg.wall_factor)
+    assert across.hyp.weight[0] == pytest.approx(cfg.initial_weight)
+    # A supported step along a wall: Eq. 3, then halved.
+    plain.update(frame(2 * DT, (1.4, 0.0)))
+    along2 = Tracker(cfg, KalmanConfig())
+    along2.update(frame(0.0, (1.0, 0.0)))
+    along2.update(frame(DT, (1.2, 0.0)))
+    along2.update(frame(2 * DT, (1.4, 0.0), structure=[math.pi]))
+    assert along2.hyp.weight[0] == pytest.approx(plain.hyp.weight[0] / 2)
+
+
+def test_two_legs_of_one_walker_keep_one_confirmed_identity():
+    """Legs 0.15 m apart, alternately moving: hypotheses split and merge, the confirmed id
+    the walker got first stays."""
+    tr = Tracker(HypothesisConfig(), KalmanConfig())
+    ids = []
+    for k in range(40):
+        t = k * DT
+        body = np.array([0.5 + 1.0 * t, 1.0])
+        swing = k % 2
+        legs = [body + [0.1 * (1 if swing else -1), 0.075], body + [0.0, -0.075]]
+        r = tr.update(frame(t, *legs))
+        h = r.hypotheses
+        ids.append(set(h.track_id[h.confirmed].tolist()))
+        assert len(h) <= 6
+    confirmed_ever = set().union(*ids)
+    first = min(confirmed_ever)
+    assert all(first in s for s in ids[8:])
+    assert len(confirmed_ever) <= 2
+
+
+def test_hypothesis_count_is_bounded_with_a_warning(caplog):
+    cfg = HypothesisConfig(max_hypotheses=50)
+    tr = Tracker(cfg, KalmanConfig())
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-5, 5, size=(300, 2))
+    with caplog.at_level(logging.WARNING, logger='laser_tracker.core.hypotheses'):
+        for k in range(4):
+            tr.update(frame(k * DT, *(pts + rng.normal(0, 0.2, pts.shape))))
+            assert len(tr.hyp) <= 50
+    assert tr.stats['bound_hits'] >= 1
+    assert any('max_hypotheses' in r.message for r in caplog.records)
+    assert len(set(tr.hyp.track_id.tolist())) == len(tr.hyp)     # ids stay unique
+
+
+def test_bad_blobs_and_time_going_backwards(caplog):
+    tr = Tracker(HypothesisConfig(), KalmanConfig())
+    with caplog.at_level(logging.WARNING, logger='laser_tracker.core.hypotheses'):
+        walk(tr, 5)
+        r = tr.update(frame(5 * DT, (np.nan, 1.0), (1e6, 0.0), (2.0, 0.0)))
+        assert tr.stats['blobs_dropped'] == 2 and len(r.hypotheses) >= 1
+        tr.update(frame(0.1, (1.0, 0.0)))                 # time went backwards
+        assert len(tr.hyp) == 0 and tr.stats['resets'] == 1
+        tr.update(frame(0.1, (1.0, 0.0)))                 # same stamp again: ignored
+        tr.update(frame(100.0, (1.0, 0.0)))               # a long gap: start afresh
+        assert tr.stats['resets'] == 2
+    text = ' '.join(r.message for r in caplog.records)
+    assert 'backwards' in text and 'not finite' in text
