@@ -225,6 +225,8 @@ def test_unlabelled_estimate():
     assert r['hypotheses'] == 4
     assert {t['track']: t['frames'] for t in r['tracks']} == {1: 16, 2: 6, 4: 5}
     assert {t['track'] for t in r['tracks'] if t['estimated_false']} == {2, 4}
+    assert r['confirmed_frames_histogram'] == {'1': 0, '2': 0, '3-5': 1, '6-10': 1,
+                                               '11-30': 1, '>30': 0}
 
 
 # ------------------------------------------------------------------------- command line

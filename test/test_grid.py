@@ -71,18 +71,22 @@ def test_free_ranges_match_scan_semantics():
     assert np.allclose(builder._ext[:ranges.size], expected.astype(np.float32))
 
 
-def test_free_erosion_keeps_cells_beside_a_short_beam_from_being_free():
+def test_free_erosion_bounds_a_beam_by_its_neighbours_on_one_surface_only():
+    eroding = GridConfig(size=8.0, no_return_free=3.0, free_erosion=1, free_erosion_jump=0.5)
     ranges = np.full(181, 3.0)
-    ranges[90] = 1.0                          # one short beam straight ahead
+    ranges[90] = 2.7                          # a step of 0.3 m: one (grazing) surface
     plain = build_grid(scan_180(ranges), CFG)
-    eroded = build_grid(scan_180(ranges), GridConfig(size=8.0, no_return_free=3.0,
-                                                     free_erosion=1))
-    # At 2 m the neighbouring beams' cells (1 deg ~ 3.5 cm apart) are free without erosion;
-    # with it their free range is bounded by the short beam.
-    ij = cell_of(2.05, 0.05)
+    eroded = build_grid(scan_180(ranges), eroding)
+    # Beam 91's wedge at 2.85 m: free without erosion (3.0 > 2.85 + 0.1) but bounded by its
+    # neighbour's 2.7 m with it.
+    ij = cell_of(2.85, 0.01)                  # centre (2.85, 0.05): bearing 1 deg
     assert plain[ij] == FREE
     assert eroded[ij] == UNKNOWN
-    assert eroded[cell_of(2.05, 0.6)] == FREE
+    assert eroded[cell_of(2.5, 1.0)] == FREE  # far from the step: unchanged
+    # Across a depth jump (an object's edge, 2 m in front) beams are not bounded.
+    ranges[90] = 1.0
+    edge = build_grid(scan_180(ranges), eroding)
+    assert edge[cell_of(2.85, 0.01)] == FREE
 
 
 def test_beam_count_change_uses_a_new_ray_table():

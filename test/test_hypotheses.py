@@ -106,13 +106,13 @@ def test_coasting_through_a_short_occlusion_keeps_the_track():
         h = r.hypotheses
         assert h.track_id.tolist() == [tid] and h.confirmed[0] and not h.supported[0]
         assert np.allclose(h.position[0], [1.0 + k * DT, 0.0])   # projected along its path
-    assert tr.hyp.weight[0] == pytest.approx(w0 - 2 * cfg.coast_penalty)
+    assert tr.hyp.weight[0] == pytest.approx(w0 - 2 * cfg.coast_rate * DT)
     r = tr.update(frame(8 * DT, (1.0 + 8 * DT, 0.0)))     # back on the predicted path
     assert r.hypotheses.track_id.tolist() == [tid] and r.hypotheses.supported[0]
 
 
 def test_removal_when_the_weight_falls_below_the_threshold():
-    cfg = HypothesisConfig(coast_penalty=15.0, remove_below=10.0)
+    cfg = HypothesisConfig(coast_rate=15.0 / DT, remove_below=10.0)
     tr = Tracker(cfg, KalmanConfig())
     walk(tr, 2)                                           # weight 20
     tr.update(frame(2 * DT))                              # 5 < 10: removed

@@ -25,9 +25,16 @@ gather and one comparison over the cells: ``FREE where reach[cell] < free_range[
 The previous grid is brought into the current scanner frame with the ego-motion estimate by
 :func:`transform_grid` (``scipy.ndimage.affine_transform``, order 0 = nearest cell, cells that
 come from outside the previous grid are ``UNKNOWN``). The difference map only needs the
-previous grid at the cells occupied now, so the per-scan path uses :func:`lookup_previous`,
-the same nearest-cell mapping evaluated at those cells only (a few hundred instead of the whole
-grid); the tests check that both agree.
+previous grid at the cells occupied now, so the per-scan path uses :func:`lookup_padded` (and
+:func:`lookup_stack` for several earlier grids at once), the same nearest-cell mapping
+evaluated at those cells only (a few hundred instead of the whole grid); the tests check that
+both agree. Grids live in buffers with a ``PAD``-cell UNKNOWN border that a
+:class:`GridBuilder` reuses scan after scan (no per-scan allocation of grids): cells that map
+outside read the border, so lookups need no bounds checks.
+
+Size: the default 16 m x 16 m (160 x 160 cells) covers the SICK's 8 m mode in every direction;
+measured on the bundled recordings, 12 m loses people at the far end of the corridor
+(exp4 MOTA 0.59 -> 0.38) and 24 m finds nothing more for 37 % more grid time.
 """
 from __future__ import annotations
 
@@ -63,10 +70,15 @@ class GridConfig:
     no_return_free: float = param(8.0, 'Distance (m) freed along a beam that returned nothing '
                                   '(inf or >= range_max); 0 = such beams free nothing.',
                                   min=0.0, max=100.0)
-    free_erosion: int = param(0, 'Beams on each side whose free range also bounds a beam\'s '
-                              '(a minimum filter along the scan): 0 = each beam alone; 1 '
-                              'keeps cells at grazing walls from being FREE in one scan and '
-                              'OCCUPIED in the next.', min=0, max=10)
+    free_erosion: int = param(1, 'Beams on each side whose free range also bounds a beam\'s '
+                              '(a minimum filter along the scan, across surfaces only, see '
+                              'free_erosion_jump): 0 = each beam alone (paper); 1 keeps cells '
+                              'at grazing walls from being FREE in one scan and OCCUPIED in '
+                              'the next.', min=0, max=10)
+    free_erosion_jump: float = param(0.5, 'Neighbouring beams whose free ranges differ by this '
+                                     'much (m) or more are a depth jump (an object\'s edge), '
+                                     'not one surface: no erosion across it.', min=0.0,
+                                     max=100.0)
 
     @property
     def cells(self) -> int:
@@ -203,9 +215,14 @@ class GridBuilder:
         fr[no_return] = limit
         if c.free_erosion:
             raw = fr.copy()
+            jump = c.free_erosion_jump
             for j in range(1, min(c.free_erosion, beams - 1) + 1):
-                np.minimum(fr[j:], raw[:-j], out=fr[j:])
-                np.minimum(fr[:-j], raw[j:], out=fr[:-j])
+                # A neighbour's shorter free range bounds this beam's when both lie on one
+                # surface (a grazing wall), not across a depth jump (an object's edge).
+                a, b = raw[:-j], raw[j:]
+                near = np.abs(a - b) < jump
+                np.minimum(fr[j:], np.where(near, a, np.inf), out=fr[j:])
+                np.minimum(fr[:-j], np.where(near, b, np.inf), out=fr[:-j])
         ext[beams] = -1.0   # "no beam": never free
         index = self._which
         padded = self.stack[index]

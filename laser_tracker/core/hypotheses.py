@@ -16,11 +16,13 @@ Per frame (``Tracker.update(blobs)``):
    own (this follows both legs of a walker).
 4. **Support**, Equation 3: ``H_weight += W_inc - W_dec * dist(B_pos, H_est)``, clipped to
    0..100, and the blob goes to the Kalman filter; the samples count grows by one.
-5. **Wall penalty**: a hypothesis whose supporting blob lies on structure (a line of static
-   occupied cells, ``Blobs.structure``) and whose velocity is within ``wall_angle`` of that
-   line's direction has its weight multiplied by ``wall_factor`` (paper: halved).
+5. **Wall penalty**: a hypothesis whose supporting (or creating) blob lies on a wall
+   (``Blobs.structure``: the blob's visible surface is a straight line running past it on
+   both sides, see ``blobs._Surfaces.measure``) and whose velocity (at least
+   ``wall_min_speed``) is within ``wall_angle`` of that line's direction has its weight
+   multiplied by ``wall_factor`` (paper: halved).
 6. **Coasting**: a hypothesis without support moves on along its velocity and loses
-   ``coast_penalty`` weight (a short occlusion is bridged).
+   ``coast_rate`` weight per second (a short occlusion is bridged).
 7. **Creation**: each new blob pairs with every previous-frame blob within ``max_speed * dt``
    (and at least ``min_displacement`` away: "seen in two separate locations"), creating a
    hypothesis with the pair's velocity and ``initial_weight``.
@@ -30,7 +32,9 @@ Per frame (``Tracker.update(blobs)``):
 9. **Removal** below ``remove_below``; a hard bound ``max_hypotheses`` (the strongest are
    kept, a warning is logged when the bound is hit).
 10. **Confirmation**: reported as a moving object once ``samples >= confirm_samples``
-    (paper: m = 4). A hypothesis' first sample is its creation pair.
+    (paper: m = 4). A hypothesis' first sample is its creation pair (the first velocity
+    measurement), each supporting blob adds one. Optional (off by default):
+    ``confirm_min_speed``, ``confirm_min_travel``.
 
 Identity. Each hypothesis has a ``track_id`` that is unique among the live hypotheses. On a
 split, the copy supported by the blob nearest the prediction keeps the parent's id, samples
@@ -77,8 +81,9 @@ class HypothesisConfig:
                          max=100.0)
     gate: float = param(0.7, 'Radius (m) around a prediction in which a blob supports the '
                         'hypothesis (the search box of Fig. 6).', min=0.01, max=10.0)
-    coast_penalty: float = param(40.0, 'Weight lost per frame without a supporting blob.',
-                                 min=0.0, max=100.0)
+    coast_rate: float = param(200.0, 'Weight lost per second without a supporting blob '
+                              '(40 per frame at the paper\'s 5 Hz; per second so that a '
+                              'faster scanner coasts as long).', min=0.0, max=10000.0)
     remove_below: float = param(10.0, 'A hypothesis whose weight falls below this is removed.',
                                 min=0.0, max=100.0)
     wall_factor: float = param(0.5, 'Weight factor for a hypothesis moving along structure '
@@ -307,7 +312,8 @@ class Tracker:
             parts.append(self._support(hyp, pred, dist, hi, bi, xy, structure, t))
         unsupported = ~gate.any(axis=1) if k else np.zeros(0, bool)
         if unsupported.any():
-            parts.append(self._coast(hyp.take(unsupported), pred[unsupported]))
+            dt_frame = t - self.prev_stamp if self.prev_stamp is not None else 0.0
+            parts.append(self._coast(hyp.take(unsupported), pred[unsupported], dt_frame))
 
         # Creation from new blobs and the previous frame's blobs.
         created = 0
@@ -391,12 +397,12 @@ class Tracker:
             self.stats['created'] += n_extra
         return out
 
-    def _coast(self, hyp: HypothesisArrays, pred) -> HypothesisArrays:
+    def _coast(self, hyp: HypothesisArrays, pred, dt: float) -> HypothesisArrays:
         """No supporting blob: continue along the velocity with a reduced weight."""
         hyp.P = self.filter.coast(hyp.P)
         data = hyp.data
         data[:, _POS] = pred
-        data[:, _WEIGHT] = np.maximum(data[:, _WEIGHT] - self.config.coast_penalty, 0.0)
+        data[:, _WEIGHT] = np.maximum(data[:, _WEIGHT] - self.config.coast_rate * dt, 0.0)
         data[:, _SUPPORTED] = 0.0
         return hyp
 

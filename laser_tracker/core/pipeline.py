@@ -16,9 +16,9 @@ Detection and tracking are separately callable, as two ROS nodes will run them:
 
 Interface between them: :class:`~laser_tracker.core.blobs.Blobs`, plain arrays only:
 ``stamp`` (s), ``frame_id`` (the odometry frame), ``origin`` (3,) the scanner pose
-``x, y, theta`` in that frame, and per blob ``xy`` (b, 2) centroid (m), ``cells`` (b,)
+``x, y, theta`` in that frame, and per blob ``xy`` (b, 2) position (m), ``cells`` (b,)
 size in cells, ``extent`` (b,) bounding-box side (m), ``structure`` (b,) direction of the
-static structure the blob lies on (rad mod pi, NaN = none). As a
+wall the blob lies on (rad mod pi, NaN = none). As a
 ``visualization_msgs/MarkerArray`` (topic ``blobs``, written by the nodes on top of this API):
 a ``DELETEALL`` marker, then one ``CYLINDER`` marker per blob with ``ns = 'blobs'``,
 ``id`` = blob index, ``header`` = (stamp, odometry frame), ``pose.position`` = (x, y, 0),
@@ -30,6 +30,11 @@ Configuration: :class:`PipelineConfig` aggregates the sections declared in the m
 ``config/laser_tracker.yaml`` holds them in ROS parameter form, node ``ego_motion``
 (``ego_motion.*``), node ``detection`` (``grid.*``, ``difference.*``, ``blobs.*``), node
 ``tracking`` (``hypotheses.*``, ``kalman.*``).
+
+Ego-motion: ``laser_tracker.core.egomotion.EgoMotionEstimator`` (odometry prior + ICP). A
+scan it cannot place (pose NaN, source ``none``) is skipped; when it restarts its pose chain
+(source ``init`` after the first scan) detection and tracking restart too, since odometry-frame
+positions before and after are unrelated.
 
 Bad input: a scan stamped before the previous one resets detection, tracking and ego-motion
 (logged, counted in ``stats``); a scan with the same stamp as the previous one is skipped.
@@ -256,6 +261,7 @@ class Pipeline:
         self.stats: Counter = Counter()
         self.sources: Counter = Counter()
         self.last_stamp: float | None = None
+        self._fresh = True        # no scan since construction or reset
 
     def add_odometry(self, stamp: float, pose) -> None:
         self.ego.add_odometry(stamp, pose)
@@ -272,6 +278,7 @@ class Pipeline:
         else:
             self.ego = EgoMotionEstimator(self.config.ego_motion)
         self.last_stamp = None
+        self._fresh = True
 
     def step(self, scan: Scan, want_grids: bool = False) -> StepResult:
         if self.last_stamp is not None:
@@ -287,7 +294,7 @@ class Pipeline:
             self.sources[str(est.source)] += 1
             return self._skip(scan, 'no ego-motion pose: ' + _generic(est.reason))
         self.sources[str(est.source)] += 1
-        if est.source == SOURCE_INIT and self.stats['scans']:
+        if est.source == SOURCE_INIT and self.stats['scans'] and not self._fresh:
             # The estimator restarted its pose chain: the odometry-frame history is void.
             log.warning('t=%.3f: ego-motion restarted (%s): detection and tracking restart',
                         scan.stamp, est.reason)
@@ -303,6 +310,7 @@ class Pipeline:
             self.times['ego_motion'] += t1 - t0
             self.times['tracking'] += t3 - t2
         self.last_stamp = scan.stamp
+        self._fresh = False
         self.stats['scans'] += 1
         return StepResult(stamp=scan.stamp, pose=pose, motion=np.asarray(est.motion, float),
                           source=str(est.source), blobs=det.blobs,

@@ -3,7 +3,8 @@
 Subscribes ``scan`` (sensor_msgs/LaserScan) and ``odom`` (nav_msgs/Odometry), both on the
 sensor-data QoS. Publishes ``ego_motion`` (nav_msgs/Odometry): for every scan that yields a
 pose, the scanner pose in the odometry frame stamped with the scan's stamp (child frame = the
-scan's frame). A scan that yields no pose is skipped with a logged reason.
+scan's frame). A scan that yields no pose (the match failed its checks and there is no usable odometry) is
+skipped with the estimator's reason logged: no pose is published from a failed match.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from sensor_msgs.msg import LaserScan
 from laser_tracker.config import param
 from laser_tracker.conversions import (PlanarOdometry, odometry_from_msg, odometry_to_msg,
                                        ros_factory, scan_from_msg)
-from laser_tracker.core.pipeline import EgoMotionEstimator
+from laser_tracker.core.egomotion import EgoMotionEstimator
 from laser_tracker.core.scan import ScanError
 from laser_tracker.nodes import common
 from laser_tracker.nodes.params import declare_section
@@ -36,7 +37,6 @@ class EgoMotionNode(Node):
         self.section = common.declare_pipeline_sections(self, 'ego_motion')['ego_motion']
         self.estimator = EgoMotionEstimator(self.section)
         self.factory = ros_factory()
-        self.last_stamp: float | None = None
         self.pose_pub = self.create_publisher(Odometry, 'ego_motion', qos_profile_sensor_data)
         # Odometry comes in bursts at a higher rate than scans: a deeper best-effort queue.
         odom_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -57,16 +57,12 @@ class EgoMotionNode(Node):
         except ScanError as exc:
             self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
             return
-        if self.last_stamp is not None and scan.stamp < self.last_stamp:
-            self.get_logger().warning(f'time went backwards ({self.last_stamp:.3f} -> '
-                                      f'{scan.stamp:.3f} s): ego-motion restarts')
-            self.estimator = EgoMotionEstimator(self.section)
-        self.last_stamp = scan.stamp
+        # The estimator resets itself when time goes backwards (a bag replayed in a loop).
         est = self.estimator.update(scan)
         pose = np.asarray(est.pose, dtype=float)
-        if not np.isfinite(pose).all():
-            self.get_logger().warning(f'no pose for the scan at {scan.stamp:.3f} s '
-                                      f'({est.source})', throttle_duration_sec=5.0)
+        if not est.ok or not np.isfinite(pose).all():
+            self.get_logger().warning(f'no pose for the scan at {scan.stamp:.3f} s: '
+                                      f'{est.reason}', throttle_duration_sec=5.0)
             return
         odom = PlanarOdometry(stamp=scan.stamp, x=pose[0], y=pose[1], theta=pose[2],
                               frame_id=self.frames.odom_frame, child_frame_id=scan.frame_id)

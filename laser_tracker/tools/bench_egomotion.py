@@ -27,6 +27,13 @@ The figure (``--figure``, default ``out/egomotion_mit_csail.png``) uses the raw 
 (odometry in its FLASER lines, no reference): the odometry-only trajectory with the scans drawn
 from it, beside the ICP-corrected trajectory with the scans drawn from it. Its time per
 361-beam scan is printed too.
+
+``--oracle N`` (diagnostic, no timing): for every scan, point-to-line ICP (fine association
+0.1 m, 10 re-associations, so it converges) against the previous N scans placed at their
+*reference* poses, started within a few millimetres of the reference pose (N(0, 5 mm, 5 mm,
+0.2 deg), seed 5). Its error against the reference is how far the matching optimum is from
+the reference when the map is perfect and the start is right: a floor for any matcher of
+this kind that does not see the reference.
 """
 from __future__ import annotations
 
@@ -66,6 +73,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-figure', action='store_true', help='skip the mit-csail figure')
     parser.add_argument('--figure-only', action='store_true',
                         help='only the mit-csail run and figure')
+    parser.add_argument('--oracle', type=int, nargs='*', metavar='N', default=None,
+                        help='diagnostic: converged ICP against the previous N scans at the '
+                        'reference poses, started near the reference (default N: 5 20 100); '
+                        'prints the floor it reaches, then exits')
     parser.add_argument('--raw-log', default=None,
                         help=f'raw log for the figure (default ../shared/data/carmen/{RAW_LOG})')
 
@@ -193,6 +204,30 @@ def bench_log(path: Path, seed: int, with_kiss: bool) -> dict:
     return result
 
 
+def oracle_floor(path: Path, n_map: int, start_sigma=(0.005, 0.005, math.radians(0.2)),
+                 seed: int = 5) -> dict:
+    """Errors of converged ICP against ``n_map`` scans at the reference poses (see --oracle)."""
+    from laser_tracker.core import icp
+
+    scans, poses, reference = load_corrected(path)
+    est = EgoMotionEstimator(BENCH_CONFIG)
+    pts = [est._points(s) for s in scans]
+    normals = [icp.scan_normals(p, BENCH_CONFIG.normal_max_gap) for p in pts]
+    rng = np.random.default_rng(seed)
+    motions = []
+    for k in range(1, len(scans)):
+        local = icp.LocalMap(n_map)
+        for j in range(max(0, k - n_map), k):
+            nrm, ok = normals[j]
+            local.add(poses[j], pts[j][ok], nrm[ok])
+        start = compose(poses[k], rng.normal(0.0, 1.0, 3) * np.array(start_sigma))
+        res = icp.align(pts[k], local, start, (0.1,), BENCH_CONFIG.kernel_ratio,
+                        steps_per_association=3, final_associations=10)
+        motions.append(between(poses[k - 1], res.pose))
+    trans, rot = step_errors(np.array(motions), reference)
+    return summary(trans, rot, [])
+
+
 # ------------------------------------------------------------------------- output
 
 
@@ -298,6 +333,18 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_kiss and not with_kiss:
         print('kiss-icp is not installed: only our figures are printed')
     status = 0
+    if args.oracle is not None:
+        for path in logs:
+            if not path.exists():
+                print(f'{path}: not found (real data lives in ../shared/data beside the repo)')
+                status = 1
+                continue
+            for n_map in args.oracle or (5, 20, 100):
+                o = oracle_floor(path, n_map)
+                print(f'{path.name}: oracle map of {n_map:3d} reference-placed scans: '
+                      f'{100 * o["trans_med"]:.3f} / {100 * o["trans_p95"]:.3f} cm, '
+                      f'{o["rot_med"]:.3f} / {o["rot_p95"]:.3f} deg (median / p95)')
+        return status
     for path in ([] if args.figure_only else logs):
         if not path.exists():
             print(f'{path}: not found (real data lives in ../shared/data beside the repo)')

@@ -297,9 +297,11 @@ def format_unlabelled(result: dict) -> str:
              f'  ({_num(fper, "{:.1f}")} per minute)',
              f'    counted as false: {_rule(result)}']
     if result['confirmed_tracks']:
+        hist = ', '.join(f'{k}: {v}' for k, v in result['confirmed_frames_histogram'].items())
         lines.append(f'  confirmed life in frames          median '
                      f'{result["confirmed_frames_median"]:.0f}, '
                      f'max {result["confirmed_frames_max"]}')
+        lines.append(f'    tracks by confirmed frames      {hist}')
     return '\n'.join(lines)
 
 

@@ -33,22 +33,28 @@ def _save(fig, path: Path) -> Path:
 
 
 def tracks_figure(rows: np.ndarray, scanner: np.ndarray, path: str | Path,
-                  title: str = '', max_arrows: int = 4000) -> Path:
+                  title: str = '', background: np.ndarray | None = None,
+                  arrow_period: float = 0.4) -> Path:
     """Fig. 10. ``rows`` (k, 6): stamp, id, x, y, vx, vy of confirmed tracks (odometry frame);
-    ``scanner`` (n, 3) scanner poses. Arrows show one second of travel."""
+    ``scanner`` (n, 3) scanner poses; ``background`` (m, 2) scan points for context (e.g. the
+    first scan, odometry frame). Each track is a line coloured by id with velocity arrows
+    (one second of travel) every ``arrow_period`` seconds."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(8, 7))
+    if background is not None and background.shape[0]:
+        ax.plot(background[:, 0], background[:, 1], '.', color='0.75', ms=1.5,
+                label='scan (first)')
     if scanner.shape[0]:
-        ax.plot(scanner[:, 0], scanner[:, 1], color='0.6', lw=1, label='scanner')
+        ax.plot(scanner[:, 0], scanner[:, 1], color='0.5', lw=1, label='scanner')
         ax.plot(scanner[-1, 0], scanner[-1, 1], marker='s', color='0.4', ms=6)
     ids = np.unique(rows[:, 1]).astype(int) if rows.shape[0] else np.zeros(0, int)
     cmap = plt.get_cmap('tab20')
-    step = max(1, int(np.ceil(rows.shape[0] / max_arrows))) if rows.shape[0] else 1
     for i, tid in enumerate(ids):
         r = rows[rows[:, 1] == tid]
         colour = cmap(i % 20)
-        ax.plot(r[:, 2], r[:, 3], '.', color=colour, ms=3)
-        a = r[::step]
+        ax.plot(r[:, 2], r[:, 3], '-', color=colour, lw=1)
+        slot = np.floor((r[:, 0] - r[0, 0]) / max(arrow_period, 1e-6))
+        a = r[np.concatenate(([True], slot[1:] != slot[:-1]))]
         ax.quiver(a[:, 2], a[:, 3], a[:, 4], a[:, 5], color=colour, angles='xy',
                   scale_units='xy', scale=1.0, width=0.003)
         ax.annotate(str(tid), r[0, 2:4], fontsize=7, color=colour)
@@ -57,7 +63,7 @@ def tracks_figure(rows: np.ndarray, scanner: np.ndarray, path: str | Path,
     ax.set_ylabel('y (m)')
     ax.set_title(title or f'confirmed tracks ({ids.size}) with velocity (1 s of travel)')
     ax.grid(True, lw=0.3)
-    if scanner.shape[0]:
+    if scanner.shape[0] or background is not None:
         ax.legend(loc='upper right', fontsize=8)
     fig.tight_layout()
     out = _save(fig, path)
@@ -119,9 +125,17 @@ def scan_figure(result, resolution: float, path: str | Path, title: str = '') ->
         loc = b.local()
         ax.plot(loc[:, 0], loc[:, 1], 'o', mfc='none', color='tab:green', ms=6)
     ax.set_title('(d) hypotheses: velocity (1 s), x = confirmed, o = blob')
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
+    # Show the observed part of the grid (a 180 deg scanner sees half of it).
+    seen = np.argwhere((grid != UNKNOWN) | (previous != UNKNOWN))
+    if seen.size:
+        lo = (seen.min(axis=0) - n / 2.0) * resolution - 0.5
+        hi = (seen.max(axis=0) + 1 - n / 2.0) * resolution + 0.5
+        lim = (max(lo[0], -half), min(hi[0], half), max(lo[1], -half), min(hi[1], half))
+    else:
+        lim = extent
     for a in axes.ravel():
+        a.set_xlim(lim[0], lim[1])
+        a.set_ylim(lim[2], lim[3])
         a.set_xlabel('x (m, scanner frame)')
         a.set_ylabel('y (m)')
     fig.suptitle(title or f'scan at t = {result.stamp:.3f} s')

@@ -27,7 +27,7 @@ import logging
 import math
 import sys
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -45,6 +45,7 @@ log = logging.getLogger(__name__)
 EGO_HEADER = 'stamp,x,y,theta\n'
 TRACKS_HEADER = 'stamp,track_id,x,y,vx,vy,weight,confirmed\n'
 TRACKS_FIGURE = 'tracks.png'
+ODOM_WAIT = 1.0   # s of recording a scan waits for odometry stamped at or after it
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -118,12 +119,13 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
     skipped: Counter = Counter()
     confirmed_ids: set[int] = set()
     figure_rows: list[tuple] = []       # confirmed rows for Fig. 10
+    background = None                   # the first scan's points (odometry frame), Fig. 10
     scanner: list[tuple] = []
     files: list[str] = []
     odometry_messages = 0
+    skipped_odometry: Counter = Counter()
     damage = None
     scan_index = -1
-    scans_done = 0
     wall0 = time.perf_counter()
 
     with contextlib.ExitStack() as stack:
@@ -140,8 +142,58 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
             ego_f = trk_f = None
         bar = _progress(n_scans, progress, bag_path.name)
         stack.callback(bar.close)
+        state = {'scans_done': 0, 'background': None}
+
+        def process(index: int, scan) -> None:
+            want = figure_scan is not None and index == figure_scan
+            result = pipeline.step(scan, want_grids=want)
+            if result.skipped:
+                skipped[result.skipped] += 1
+                return
+            state['scans_done'] += 1
+            if state['background'] is None:
+                from laser_tracker.core.geometry import transform_points
+                state['background'] = transform_points(result.pose, scan.points())
+            _write_scan(result, ego_f, trk_f)
+            h = result.hypotheses
+            scanner.append(tuple(result.pose))
+            for j in np.flatnonzero(h.confirmed):
+                figure_rows.append((result.stamp, int(h.track_id[j]), *h.position[j],
+                                    *h.velocity[j]))
+            for j in result.newly_confirmed:
+                tid = int(h.track_id[j])
+                if tid in confirmed_ids:
+                    continue
+                confirmed_ids.add(tid)
+                if on_confirmed is not None:
+                    on_confirmed(float(result.stamp), tid, float(h.position[j, 0]),
+                                 float(h.position[j, 1]), float(h.velocity[j, 0]),
+                                 float(h.velocity[j, 1]))
+            if want and out_dir is not None:
+                from laser_tracker.tools.figures import scan_figure
+                name = f'scan_{figure_scan}.png'
+                scan_figure(result, config.grid.resolution, out_dir / name,
+                            f'{bag_path.name}: scan {figure_scan} at t = {result.stamp:.3f} s')
+                files.append(name)
+
+        # A scan waits (in receive order) until odometry stamped at or after it has arrived,
+        # or ODOM_WAIT seconds of recording have passed: odometry that arrives after the
+        # scan it belongs to is still used (the paper's late, jittered odometry).
+        pending: deque = deque()
+
+        def release(odom_stamp: float | None, now_ns: int | None) -> None:
+            while pending:
+                t_ns, index, scan = pending[0]
+                if odom_stamp is not None and scan.stamp <= odom_stamp or \
+                        now_ns is not None and now_ns - t_ns > ODOM_WAIT * 1e9 or \
+                        odom_stamp is None and now_ns is None:
+                    pending.popleft()
+                    process(index, scan)
+                else:
+                    break
+
         try:
-            for topic, _, msg in iter_messages(bag_path, wanted):
+            for topic, t_ns, msg in iter_messages(bag_path, wanted):
                 if topic != scan_topic:
                     try:
                         odo = odometry_from_msg(msg)
@@ -149,14 +201,16 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
                         if not all(math.isfinite(v) for v in (odo.stamp, *pose)):
                             raise ValueError('non-finite odometry')
                     except Exception as exc:   # noqa: BLE001 - any malformed message
-                        skipped_odo = f'odometry message skipped: {exc}'
-                        log.warning(skipped_odo)
+                        log.warning('odometry message skipped: %s', exc)
+                        skipped_odometry[str(exc)[:80]] += 1
                         continue
                     pipeline.add_odometry(odo.stamp, pose)
                     odometry_messages += 1
+                    release(odo.stamp, t_ns)
                     continue
                 scan_index += 1
                 bar.update(1)
+                release(None, t_ns)
                 try:
                     scan = scan_from_msg(msg)
                 except (ScanError, ValueError, TypeError, AttributeError) as exc:
@@ -164,39 +218,17 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
                     log.warning('scan %d skipped: %s', scan_index, reason)
                     skipped[_reason_key(reason)] += 1
                     continue
-                want = figure_scan is not None and scan_index == figure_scan
-                result = pipeline.step(scan, want_grids=want)
-                if result.skipped:
-                    skipped[result.skipped] += 1
-                    continue
-                scans_done += 1
-                _write_scan(result, ego_f, trk_f)
-                h = result.hypotheses
-                scanner.append(tuple(result.pose))
-                conf = np.flatnonzero(h.confirmed)
-                for j in conf:
-                    figure_rows.append((result.stamp, int(h.track_id[j]), *h.position[j],
-                                        *h.velocity[j]))
-                for j in result.newly_confirmed:
-                    tid = int(h.track_id[j])
-                    if tid in confirmed_ids:
-                        continue
-                    confirmed_ids.add(tid)
-                    if on_confirmed is not None:
-                        on_confirmed(float(result.stamp), tid, float(h.position[j, 0]),
-                                     float(h.position[j, 1]), float(h.velocity[j, 0]),
-                                     float(h.velocity[j, 1]))
-                if want and out_dir is not None:
-                    from laser_tracker.tools.figures import scan_figure
-                    name = f'scan_{figure_scan}.png'
-                    scan_figure(result, config.grid.resolution, out_dir / name,
-                                f'{bag_path.name}: scan {figure_scan} at t = '
-                                f'{result.stamp:.3f} s')
-                    files.append(name)
+                if has_odometry:
+                    pending.append((t_ns, scan_index, scan))
+                else:
+                    process(scan_index, scan)
+            release(None, None)
         except InputFileError as exc:
             damage = str(exc)
             log.error('replay stopped early: %s', damage)
+            release(None, None)
         wall = time.perf_counter() - wall0
+        scans_done, background = state['scans_done'], state['background']
 
     if figure_scan is not None and not (0 <= figure_scan <= scan_index):
         log.warning('--figure-scan %d: the recording has scans 0..%d', figure_scan, scan_index)
@@ -209,6 +241,7 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
         'scan_messages': scan_index + 1,
         'scans_skipped': dict(skipped),
         'odometry_messages': odometry_messages,
+        'odometry_skipped': dict(skipped_odometry),
         'pipeline_events': {k: v for k, v in pipeline.stats.items() if k != 'scans'},
         'hypotheses_created': int(stats['created']),
         'confirmed_tracks': len(confirmed_ids),
@@ -228,7 +261,7 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
         rows = np.array(figure_rows, float).reshape(-1, 6)
         tracks_figure(rows, np.array(scanner, float).reshape(-1, 3), out_dir / TRACKS_FIGURE,
                       f'{bag_path.name}: {len(confirmed_ids)} confirmed tracks with '
-                      f'velocity (1 s of travel)')
+                      f'velocity (1 s of travel)', background=background)
         files.append(TRACKS_FIGURE)
         files.append('summary.json')
         summary['files'] = files

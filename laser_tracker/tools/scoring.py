@@ -54,8 +54,8 @@ Unlabelled recordings
     confirmed tracks that did not move like a walker: their displacement over their
     confirmed life (largest distance from their first confirmed position) is below
     ``min_displacement``, or their mean reported speed while confirmed is below
-    ``min_track_speed``. :func:`score` computes the same estimate beside the true count, so
-    the simulated recordings calibrate it.
+    ``min_track_speed``. ``laser-tracker evaluate`` prints the same estimate beside the
+    measured count on labelled recordings, so the simulated recordings calibrate it.
 """
 from __future__ import annotations
 
@@ -601,6 +601,10 @@ def score_unlabelled(tracks: TrackTable, scan_stamps: np.ndarray,
         'estimated_false_per_minute': per_minute(len(false)),
         'min_displacement': config.min_displacement,
         'min_track_speed': config.min_track_speed,
+        'confirmed_frames_histogram': {
+            label: int(((frames >= lo) & (frames <= hi)).sum())
+            for label, lo, hi in (('1', 1, 1), ('2', 2, 2), ('3-5', 3, 5), ('6-10', 6, 10),
+                                  ('11-30', 11, 30), ('>30', 31, np.inf))},
         'confirmed_frames_median': float(np.median(frames)) if frames.size else None,
         'confirmed_frames_max': int(frames.max()) if frames.size else None,
         'tracks': lives,

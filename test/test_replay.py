@@ -1,0 +1,173 @@
+"""``laser-tracker replay``: outputs with consistent rows on a bundled recording, the API the
+evaluate/demo commands use, and bad recordings that must not stop it."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from laser_tracker.cli import main
+from laser_tracker.conversions import odometry_to_msg, scan_to_msg, PlanarOdometry, header
+from laser_tracker.core.pipeline import PipelineConfig
+from laser_tracker.core.scan import Scan
+from laser_tracker.errors import InputFileError
+from laser_tracker.io.bag import FACTORY, BagWriter
+from laser_tracker.tools.replay import replay_bag
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / 'shared' / 'data'
+BUNDLED = REPO / 'bags' / 'exp1_stationary_single_walker'
+
+
+def read_csv(path):
+    with open(path, newline='') as fh:
+        rows = list(csv.reader(fh))
+    return rows[0], rows[1:]
+
+
+def bundled():
+    if not (BUNDLED / 'metadata.yaml').exists():
+        pytest.skip('bags/exp1_stationary_single_walker not found (`make bags` writes it)')
+    return BUNDLED
+
+
+def test_replay_of_a_bundled_recording_writes_consistent_outputs(tmp_path):
+    bag = bundled()
+    announced = []
+    summary = replay_bag(bag, out_dir=tmp_path, progress=False, figure_scan=40,
+                         on_confirmed=lambda *a: announced.append(a))
+    head, ego = read_csv(tmp_path / 'ego_motion.csv')
+    assert head == ['stamp', 'x', 'y', 'theta']
+    head, tracks = read_csv(tmp_path / 'tracks.csv')
+    assert head == ['stamp', 'track_id', 'x', 'y', 'vx', 'vy', 'weight', 'confirmed']
+    assert len(ego) == summary['scans'] > 100
+    ego_stamps = [float(r[0]) for r in ego]
+    assert ego_stamps == sorted(ego_stamps) and len(set(ego_stamps)) == len(ego_stamps)
+    stamps = {float(r[0]) for r in tracks}
+    assert stamps <= set(ego_stamps)
+    per_scan = {}
+    for r in tracks:
+        per_scan.setdefault(r[0], []).append(int(r[1]))
+        assert r[7] in ('0', '1') and 0.0 <= float(r[6]) <= 100.0
+        assert all(math.isfinite(float(v)) for v in r[2:6])
+    assert all(len(ids) == len(set(ids)) for ids in per_scan.values())   # unique per scan
+    ids = {int(r[1]) for r in tracks}
+    assert summary['hypotheses_created'] >= len(ids) > 0
+    confirmed = {int(r[1]) for r in tracks if r[7] == '1'}
+    assert summary['confirmed_tracks'] == len(confirmed) >= 1
+    # on_confirmed: once per track, at the first scan where tracks.csv has it confirmed.
+    assert sorted(a[1] for a in announced) == sorted(confirmed)
+    for stamp, tid, x, y, vx, vy in announced:
+        first = min(float(r[0]) for r in tracks if int(r[1]) == tid and r[7] == '1')
+        assert stamp == pytest.approx(first, abs=1e-6)
+    s = json.loads((tmp_path / 'summary.json').read_text())
+    assert s['scans'] == summary['scans'] and s['scans_skipped'] == {}
+    assert sum(s['ego_motion_sources'].values()) == s['scans']
+    assert set(s['timing']['ms_per_scan']) >= {'ego_motion', 'grid', 'tracking'}
+    for name in ('tracks.png', 'scan_40.png'):
+        assert (tmp_path / name).stat().st_size > 10_000
+
+
+def scan_msg(stamp, n=181, rng=3.0, angle_max=None):
+    scan = Scan(stamp=stamp, ranges=np.full(n, rng), angle_min=-math.pi / 2,
+                angle_increment=math.pi / (n - 1), range_min=0.05, range_max=8.0)
+    msg = scan_to_msg(FACTORY, scan)
+    if angle_max is not None:
+        msg = FACTORY.make('sensor_msgs/msg/LaserScan', header=header(FACTORY, stamp, 'laser'),
+                           angle_min=msg.angle_min, angle_max=angle_max,
+                           angle_increment=msg.angle_increment, time_increment=0.0,
+                           scan_time=0.0, range_min=0.05, range_max=8.0, ranges=msg.ranges,
+                           intensities=msg.intensities)
+    return msg
+
+
+def test_bad_recording_is_survived_and_counted(tmp_path):
+    bag = tmp_path / 'bad'
+    with BagWriter(bag) as w:
+        t = 1.0
+        for k in range(6):
+            w.write('/scan', scan_msg(t), t)
+            t += 0.2
+        w.write('/scan', scan_msg(t, n=361), t)                          # beam count changes
+        t += 0.2
+        nan = scan_msg(t)
+        nan.ranges[::2] = np.nan
+        w.write('/scan', nan, t)                                          # NaN ranges
+        nan_t = t
+        t += 0.2
+        w.write('/scan', scan_msg(t, angle_max=3.0), t)                   # malformed
+        t += 0.2
+        w.write('/scan', scan_msg(nan_t), t)                              # duplicate stamp
+        w.write('/scan', scan_msg(0.5), t + 0.1)                          # backwards
+        for k in range(3):
+            w.write('/scan', scan_msg(0.7 + 0.2 * k), t + 0.2 + 0.1 * k)
+    summary = replay_bag(bag, out_dir=tmp_path / 'out', progress=False)
+    skipped = summary['scans_skipped']
+    assert any(k.startswith('malformed scan') for k in skipped)
+    assert summary['scan_messages'] == 14
+    assert summary['scans'] + sum(skipped.values()) == 14
+    assert skipped.get('duplicate stamp') == 1
+    assert summary['odom_topic'] is None                                  # scan matching alone
+    events = summary['pipeline_events']
+    assert events.get('reset: time went backwards') == 1
+    assert 'reset: ego-motion restarted' not in events          # one reset, counted once
+    _, ego = read_csv(tmp_path / 'out' / 'ego_motion.csv')
+    assert len(ego) == summary['scans']
+
+
+def test_odometry_is_used_when_present(tmp_path):
+    bag = tmp_path / 'odo'
+    with BagWriter(bag) as w:
+        for k in range(8):
+            t = 1.0 + 0.2 * k
+            for j in range(4):
+                s = t - 0.1 + 0.05 * j
+                w.write('/odom', odometry_to_msg(FACTORY, PlanarOdometry(s, 0.0, 0.0, 0.0)), s)
+            w.write('/scan', scan_msg(t), t + 0.1)
+    summary = replay_bag(bag, progress=False)
+    assert summary['odom_topic'] == '/odom' and summary['odometry_messages'] == 32
+    assert summary['files'] == [] and summary['scans'] == 8
+
+
+def test_missing_scan_topic_is_a_clear_error(tmp_path):
+    bag = tmp_path / 'noscan'
+    with BagWriter(bag) as w:
+        w.write('/odom', odometry_to_msg(FACTORY, PlanarOdometry(1.0, 0.0, 0.0, 0.0)), 1.0)
+    with pytest.raises(InputFileError, match='/scan'):
+        replay_bag(bag, progress=False)
+    assert main(['replay', str(bag), '--out', str(tmp_path / 'o'), '--no-progress']) == 2
+
+
+def test_command_line_with_a_config_file(tmp_path, capsys):
+    bag = tmp_path / 'small'
+    with BagWriter(bag) as w:
+        for k in range(5):
+            w.write('/scan', scan_msg(1.0 + 0.2 * k), 1.1 + 0.2 * k)
+    cfg = tmp_path / 'c.yaml'
+    from laser_tracker.tools.config_file import render_defaults
+    cfg.write_text(render_defaults(PipelineConfig().replace(kalman={'mode': 'cv'})))
+    out = tmp_path / 'out'
+    assert main(['replay', str(bag), '--config', str(cfg), '--out', str(out),
+                 '--no-progress']) == 0
+    assert '5 scans replayed' in capsys.readouterr().out
+    assert json.loads((out / 'summary.json').read_text())['config']['tracking'][
+        'kalman.mode'] == 'cv'
+    cfg.write_text(cfg.read_text().replace('mode: cv', 'mode: fancy'))
+    assert main(['replay', str(bag), '--config', str(cfg), '--out', str(out),
+                 '--no-progress']) == 2
+    assert 'kalman.mode' in capsys.readouterr().err
+
+
+def test_real_ros1_recording_without_odometry(tmp_path):
+    bag = DATA / 'leg_tracker' / 'demo_stationary_simple_environment.bag'
+    if not bag.exists():
+        pytest.skip(f'{bag} not found (real data lives beside the repo)')
+    summary = replay_bag(bag, out_dir=tmp_path, progress=False)
+    assert summary['scans'] >= 1200 and summary['odom_topic'] is None
+    assert summary['confirmed_tracks'] > 5                # people walk past
+    _, tracks = read_csv(tmp_path / 'tracks.csv')
+    assert len(tracks) > 100
