@@ -497,3 +497,28 @@ def test_real_log_meets_issue_targets(real_results, name):
         ('rot_med', ours['rot_med'], 0.25), ('rot_p95', ours['rot_p95'], 1.0))
         if value > limit]
     assert not misses, ', '.join(misses)
+
+
+def test_standing_scanner_without_odometry_does_not_drift():
+    """Key scans: a scanner that does not move keeps matching the same map scans, so its
+    pose stays put instead of random-walking scan after scan (as it did with every scan
+    joining the map)."""
+    rng = np.random.default_rng(7)
+    pose = np.array([0.3, -0.2, 0.1])
+
+    def final_drift(config):
+        est = EgoMotionEstimator(config)
+        first = last = None
+        for k in range(400):
+            e = est.update(cast(ROOM, pose, sigma=0.01, rng=rng, stamp=0.2 * k))
+            assert e.ok
+            first = e.pose if first is None else first
+            last = e.pose
+        return math.hypot(*(last[:2] - first[:2])), abs(last[2] - first[2])
+
+    drift, turn = final_drift(EgoMotionConfig())
+    assert drift < 0.005 and turn < 0.2 * DEG
+    every_scan = EgoMotionConfig(map_min_translation=0.0, map_min_rotation=0.0)
+    assert EgoMotionEstimator(every_scan).config.map_min_translation == 0.0
+    drift_all, _ = final_drift(every_scan)
+    assert drift_all > 2 * drift

@@ -132,6 +132,12 @@ class EgoMotionConfig:
     # --- ICP
     map_scans: int = param(5, 'Scans in the local map the current scan is matched against.',
                            min=1, max=100)
+    map_min_translation: float = param(
+        0.05, 'A scan joins the local map only once the scanner has moved this far (m) or '
+        'turned map_min_rotation since the last scan that joined: a standing scanner keeps '
+        'matching the same key scans and its pose does not random-walk.', min=0.0, max=10.0)
+    map_min_rotation: float = param(
+        0.035, 'See map_min_translation (rad).', min=0.0, max=_PI)
     association_distance: float = param(
         1.0, 'First (coarsest) nearest-neighbour association distance (m).',
         min=0.01, max=10.0)
@@ -492,7 +498,8 @@ class EgoMotionEstimator:
         self._odo, self._seg = (odo, seg) if odo is not None else (None, -1)
         self._motion, self._dt = motion, dt
         self._lost = 0
-        self._add_to_map(pts)
+        if self._moved_since_key_scan():
+            self._add_to_map(pts)
         self.stats[source] += 1
         return EgoMotionEstimate(stamp=t, pose=self._pose.copy(), motion=motion,
                                  covariance=cov, source=source, reason=reason, dt=dt,
@@ -502,6 +509,7 @@ class EgoMotionEstimator:
 
     def _reset_state(self) -> None:
         self._map.clear()
+        self._key_pose: np.ndarray | None = None
         self._pose: np.ndarray | None = None
         self._stamp: float | None = None
         self._odo: np.ndarray | None = None
@@ -534,15 +542,25 @@ class EgoMotionEstimator:
         rr = r[idx]
         return np.column_stack((rr * cos[idx], rr * sin[idx]))
 
+    def _moved_since_key_scan(self) -> bool:
+        key = self._key_pose
+        if key is None:
+            return True
+        d = _between(key, self._pose)
+        return (math.hypot(d[0], d[1]) >= self.config.map_min_translation
+                or abs(d[2]) >= self.config.map_min_rotation)
+
     def _add_to_map(self, pts: np.ndarray) -> None:
         if pts.shape[0] < 2:
             return
         nrm, ok = icp.scan_normals(pts, self.config.normal_max_gap)
         self._map.add(self._pose, pts[ok], nrm[ok])
         self._map.build()
+        self._key_pose = self._pose.copy()
 
     def _init(self, scan, pts, odo, seg, odo_reason) -> EgoMotionEstimate:
         self._map.clear()
+        self._key_pose = None
         if odo is not None:
             self._pose, reason = odo.copy(), 'first scan: pose from odometry'
         else:
