@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from laser_tracker.config import ConfigError
-from laser_tracker.core.geometry import compose
 from laser_tracker.core.hypotheses import Tracker
 from laser_tracker.core.pipeline import Detector, Pipeline, PipelineConfig
 from laser_tracker.core.scan import Scan

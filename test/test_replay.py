@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from laser_tracker.cli import main
-from laser_tracker.conversions import odometry_to_msg, scan_to_msg, PlanarOdometry, header
+from laser_tracker.conversions import PlanarOdometry, header, odometry_to_msg, scan_to_msg
 from laser_tracker.core.pipeline import PipelineConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.errors import InputFileError

@@ -54,7 +54,6 @@ from typing import Any
 import numpy as np
 
 from laser_tracker.config import ConfigError, describe, from_dict, read_ros_yaml, to_dict
-from laser_tracker.core import geometry
 from laser_tracker.core.blobs import BlobConfig, Blobs, segment
 from laser_tracker.core.difference import (DifferenceConfig, changed_cells, difference_map,
                                            not_occupied_before, relative_motion)

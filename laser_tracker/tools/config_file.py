@@ -2,8 +2,9 @@
 
 ``--write PATH`` renders the defaults of every section (``core.pipeline.PipelineConfig``) as a
 ROS 2 parameter file: node ``ego_motion``, node ``detection`` (grid, difference, blobs), node
-``tracking`` (hypotheses, kalman), each parameter ``<section>.<field>``. ``config/laser_tracker.yaml`` is this output, committed (a test keeps
-it equal to the defaults, so every value is declared once, in the code).
+``tracking`` (hypotheses, kalman), each parameter ``<section>.<field>``.
+``config/laser_tracker.yaml`` is this output, committed (a test keeps it equal to the
+defaults, so every value is declared once, in the code).
 
 ``--check PATH`` loads a file as the nodes and ``replay`` would and reports the first problem
 (unknown parameter, wrong type, value out of range) with exit status 2.

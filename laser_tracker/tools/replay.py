@@ -33,7 +33,6 @@ from pathlib import Path
 
 import numpy as np
 
-from laser_tracker.config import ConfigError
 from laser_tracker.conversions import odometry_from_msg, scan_from_msg
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
@@ -313,6 +312,4 @@ def _json_default(o):
         return o.item()
     if isinstance(o, np.ndarray):
         return o.tolist()
-    if isinstance(o, ConfigError):
-        return str(o)
     raise TypeError(f'{type(o).__name__} is not JSON serialisable')
