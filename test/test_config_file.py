@@ -9,6 +9,7 @@ import yaml
 from laser_tracker.cli import main
 from laser_tracker.config import read_ros_yaml
 from laser_tracker.core.pipeline import NODES, PipelineConfig
+from laser_tracker.parameters import NODE_SECTIONS
 from laser_tracker.tools.config_file import check, render_defaults
 
 REPO = Path(__file__).resolve().parents[1]
@@ -25,10 +26,12 @@ def test_committed_file_equals_the_defaults_rendering():
 def test_rendering_is_a_ros_parameter_file_that_loads_back_to_the_defaults(tmp_path):
     text = render_defaults()
     doc = yaml.safe_load(text)
-    assert list(doc) == list(NODES)
+    assert list(doc) == list(NODE_SECTIONS)
     for node, sections in NODES.items():
         assert list(doc[node]) == ['ros__parameters']
-        assert list(doc[node]['ros__parameters']) == list(sections)
+        assert set(sections) <= set(doc[node]['ros__parameters'])
+    assert doc['sick_lms_driver']['ros__parameters']['baud'] == 38400
+    assert doc['active_head']['ros__parameters']['head']['max_lead'] == 3.0
     path = tmp_path / 'p.yaml'
     path.write_text(text)
     assert PipelineConfig.load(path) == PipelineConfig()

@@ -149,7 +149,7 @@ def test_command_line_with_a_config_file(tmp_path, capsys):
             w.write('/scan', scan_msg(1.0 + 0.2 * k), 1.1 + 0.2 * k)
     cfg = tmp_path / 'c.yaml'
     from laser_tracker.tools.config_file import render_defaults
-    cfg.write_text(render_defaults(PipelineConfig().replace(kalman={'mode': 'cv'})))
+    cfg.write_text(render_defaults().replace('mode: paper', 'mode: cv'))
     out = tmp_path / 'out'
     assert main(['replay', str(bag), '--config', str(cfg), '--out', str(out),
                  '--no-progress']) == 0

@@ -107,7 +107,9 @@ class PipelineConfig:
         for node, sections in NODES.items():
             for name, value in (nodes.get(node) or {}).items():
                 section, _, key = name.partition('.')
-                if section not in sections or not key:
+                if not key:
+                    continue    # a plain name: the node shell's own (laser_tracker.parameters)
+                if section not in sections:
                     raise ConfigError(f'{where}node {node}: unknown parameter {name!r} '
                                       f'(sections here: {", ".join(sections)})')
                 values[section][key] = value

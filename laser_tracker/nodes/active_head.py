@@ -7,9 +7,6 @@ and ``ego_motion`` (nav_msgs/Odometry: the platform pose in the same frame). Pub
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import rclpy
 from geometry_msgs.msg import PointStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -17,27 +14,18 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
-from laser_tracker.config import param
 from laser_tracker.conversions import (joint_state_msg, objects_from_marker_array,
                                        odometry_from_msg, point_stamped_msg, ros_factory)
-from laser_tracker.core.head import HeadConfig, HeadPointer
-from laser_tracker.nodes.params import declare_section
-
-
-@dataclass(frozen=True)
-class ActiveHeadNodeConfig:
-    pan_joint: str = param('head_pan_joint', 'Name of the pan joint in head/command.')
-    tilt_joint: str = param('head_tilt_joint', 'Name of the tilt joint in head/command.')
-    max_pose_age: float = param(1.0, 'Tracks are aimed at only if the latest ego-motion pose '
-                                     'is at most this old (s) relative to them.', min=0.0,
-                                max=60.0)
+from laser_tracker.core.head import HeadPointer
+from laser_tracker.nodes import common
 
 
 class ActiveHeadNode(Node):
     def __init__(self, **kwargs):
         super().__init__('active_head', **kwargs)
-        self.node_config = declare_section(self, ActiveHeadNodeConfig, '')
-        self.pointer = HeadPointer(declare_section(self, HeadConfig, 'head'))
+        params = common.declare_node_parameters(self, 'active_head')
+        self.node_config = params['']
+        self.pointer = HeadPointer(params['head'])
         self.factory = ros_factory()
         self.pose = None
         self.command_pub = self.create_publisher(JointState, 'head/command', 10)
@@ -70,15 +58,7 @@ class ActiveHeadNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = ActiveHeadNode()
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    common.run(ActiveHeadNode, args)
 
 
 if __name__ == '__main__':

@@ -6,15 +6,15 @@ from collections.abc import Callable
 
 import rclpy
 
-from laser_tracker.core.pipeline import NODES, PipelineConfig
 from laser_tracker.nodes.params import declare_section
+from laser_tracker.parameters import NODE_SECTIONS
 
 
-def declare_pipeline_sections(node, node_name: str) -> dict:
-    """Declare the pipeline sections that belong to ``node_name`` (``core.pipeline.NODES``)."""
-    types = PipelineConfig.section_types()
-    return {section: declare_section(node, types[section], section)
-            for section in NODES[node_name]}
+def declare_node_parameters(node, node_name: str) -> dict:
+    """Declare every parameter of ``node_name`` (``laser_tracker.parameters``); return
+    ``{section prefix: section instance}`` ('' = the node's plain-named parameters)."""
+    return {prefix: declare_section(node, cls, prefix)
+            for prefix, cls in NODE_SECTIONS[node_name].items()}
 
 
 def run(node_factory: Callable[[], object], args=None) -> None:

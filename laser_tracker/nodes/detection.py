@@ -23,7 +23,7 @@ from laser_tracker.nodes import common
 class DetectionNode(Node):
     def __init__(self, **kwargs):
         super().__init__('detection', **kwargs)
-        sections = common.declare_pipeline_sections(self, 'detection')
+        sections = common.declare_node_parameters(self, 'detection')
         self.detector = Detector(sections['grid'], sections['difference'], sections['blobs'])
         self.factory = ros_factory()
         self.last_stamp: float | None = None

@@ -3,12 +3,11 @@
 Subscribes ``scan`` (sensor_msgs/LaserScan) and ``odom`` (nav_msgs/Odometry), both on the
 sensor-data QoS. Publishes ``ego_motion`` (nav_msgs/Odometry): for every scan that yields a
 pose, the scanner pose in the odometry frame stamped with the scan's stamp (child frame = the
-scan's frame). A scan that yields no pose (the match failed its checks and there is no usable odometry) is
-skipped with the estimator's reason logged: no pose is published from a failed match.
+scan's frame). A scan that yields no pose (the match failed its checks and there is no usable
+odometry) is skipped with the estimator's reason logged: no pose is published from a failed
+match. Scans wait up to ``odom_wait`` for their odometry (``core/sync.py``), as in replay.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 from nav_msgs.msg import Odometry
@@ -16,32 +15,31 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
 
-from laser_tracker.config import param
 from laser_tracker.conversions import (PlanarOdometry, odometry_from_msg, odometry_to_msg,
                                        ros_factory, scan_from_msg)
 from laser_tracker.core.egomotion import EgoMotionEstimator
 from laser_tracker.core.scan import ScanError
+from laser_tracker.core.sync import OdometryWait
 from laser_tracker.nodes import common
-from laser_tracker.nodes.params import declare_section
-
-
-@dataclass(frozen=True)
-class FrameConfig:
-    odom_frame: str = param('odom', 'Frame of the published poses (the odometry frame).')
 
 
 class EgoMotionNode(Node):
     def __init__(self, **kwargs):
         super().__init__('ego_motion', **kwargs)
-        self.frames = declare_section(self, FrameConfig, '')
-        self.section = common.declare_pipeline_sections(self, 'ego_motion')['ego_motion']
+        params = common.declare_node_parameters(self, 'ego_motion')
+        self.node_config, self.section = params[''], params['ego_motion']
         self.estimator = EgoMotionEstimator(self.section)
         self.factory = ros_factory()
+        self.waiting: OdometryWait = OdometryWait(self.node_config.odom_wait)
         self.pose_pub = self.create_publisher(Odometry, 'ego_motion', qos_profile_sensor_data)
         # Odometry comes in bursts at a higher rate than scans: a deeper best-effort queue.
         odom_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.create_subscription(Odometry, 'odom', self.on_odom, odom_qos)
         self.create_subscription(LaserScan, 'scan', self.on_scan, qos_profile_sensor_data)
+        self.create_timer(0.05, lambda: self.process(self.waiting.release(self.now())))
+
+    def now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def on_odom(self, msg: Odometry) -> None:
         odo = odometry_from_msg(msg)
@@ -50,6 +48,7 @@ class EgoMotionNode(Node):
             self.get_logger().warning('non-finite odometry skipped', throttle_duration_sec=5.0)
             return
         self.estimator.add_odometry(odo.stamp, pose)
+        self.process(self.waiting.add_odometry(self.now(), odo.stamp))
 
     def on_scan(self, msg: LaserScan) -> None:
         try:
@@ -57,6 +56,13 @@ class EgoMotionNode(Node):
         except ScanError as exc:
             self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
             return
+        self.process(self.waiting.add_scan(self.now(), scan.stamp, scan))
+
+    def process(self, scans) -> None:
+        for scan in scans:
+            self.estimate(scan)
+
+    def estimate(self, scan) -> None:
         # The estimator resets itself when time goes backwards (a bag replayed in a loop).
         est = self.estimator.update(scan)
         pose = np.asarray(est.pose, dtype=float)
@@ -65,7 +71,7 @@ class EgoMotionNode(Node):
                                       f'{est.reason}', throttle_duration_sec=5.0)
             return
         odom = PlanarOdometry(stamp=scan.stamp, x=pose[0], y=pose[1], theta=pose[2],
-                              frame_id=self.frames.odom_frame, child_frame_id=scan.frame_id)
+                              frame_id=self.node_config.odom_frame, child_frame_id=scan.frame_id)
         self.pose_pub.publish(odometry_to_msg(self.factory, odom))
 
 

@@ -27,7 +27,7 @@ from sensor_msgs.msg import LaserScan
 
 from laser_tracker.conversions import scan_to_msg, ros_factory
 from laser_tracker.core.scan import ScanError
-from laser_tracker.nodes.params import declare_section
+from laser_tracker.nodes import common
 from laser_tracker.sick.driver import SickLmsConfig, SickLmsDriver, SickScan
 from laser_tracker.sick.protocol import StatusByte
 
@@ -41,7 +41,7 @@ class SickLmsDriverNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('sick_lms_driver', **kwargs)
-        self.config: SickLmsConfig = declare_section(self, SickLmsConfig, '')
+        self.config: SickLmsConfig = common.declare_node_parameters(self, 'sick_lms_driver')['']
         self._factory = ros_factory()
         self._scan_pub = self.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)

@@ -19,7 +19,7 @@ from laser_tracker.nodes import common
 class TrackingNode(Node):
     def __init__(self, **kwargs):
         super().__init__('tracking', **kwargs)
-        sections = common.declare_pipeline_sections(self, 'tracking')
+        sections = common.declare_node_parameters(self, 'tracking')
         self.tracker = Tracker(sections['hypotheses'], sections['kalman'])
         self.factory = ros_factory()
         self.last_stamp: float | None = None

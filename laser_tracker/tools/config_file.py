@@ -1,8 +1,9 @@
-"""``laser-tracker config``: write or check the pipeline's ROS parameter file.
+"""``laser-tracker config``: write or check the package's ROS parameter file.
 
-``--write PATH`` renders the defaults of every section (``core.pipeline.PipelineConfig``) as a
-ROS 2 parameter file: node ``ego_motion``, node ``detection`` (grid, difference, blobs), node
-``tracking`` (hypotheses, kalman), each parameter ``<section>.<field>``.
+``--write PATH`` renders the defaults of every node's parameters (``laser_tracker.parameters``)
+as a ROS 2 parameter file: ``sick_lms_driver``, ``ego_motion`` (plus section ``ego_motion``),
+``detection`` (grid, difference, blobs), ``tracking`` (hypotheses, kalman), ``active_head``
+(plus section ``head``); algorithm parameters are ``<section>.<field>``.
 ``config/laser_tracker.yaml`` is this output, committed (a test keeps it equal to the
 defaults, so every value is declared once, in the code).
 
@@ -14,14 +15,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from laser_tracker import parameters
 from laser_tracker.config import ConfigError, read_ros_yaml, render_ros_yaml
-from laser_tracker.core.pipeline import NODES, PipelineConfig
+from laser_tracker.core.pipeline import PipelineConfig
 from laser_tracker.io.atomic import atomic_path
 
 HEADER = """\
-# laser_tracker pipeline parameters (ROS 2 parameter file).
+# laser_tracker parameters, every node (ROS 2 parameter file).
 # Generated from the code's defaults by `laser-tracker config --write config/laser_tracker.yaml`;
-# the defaults are declared once, in laser_tracker/core/*.py. Use it with
+# the defaults are declared once, in the code (laser_tracker/parameters.py). Use it with
 #   ros2 run laser_tracker <node> --ros-args --params-file config/laser_tracker.yaml
 #   laser-tracker replay BAG --config config/laser_tracker.yaml
 """
@@ -34,19 +36,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--check', metavar='PATH', help='validate a ROS parameter file')
 
 
-def render_defaults(config: PipelineConfig | None = None) -> str:
-    """The parameter file text of ``config`` (default: the defaults), rendered with
-    ``config.render_ros_yaml``: nodes, sections and fields in declaration order. Descriptions
-    and ranges are in the code and reach users through ``ros2 param describe``."""
-    return render_ros_yaml((config or PipelineConfig()).to_ros_params(), HEADER)
+def render_defaults() -> str:
+    """The parameter file text of every node's defaults: nodes, sections and fields in
+    declaration order. Descriptions and ranges are in the code and reach users through
+    ``ros2 param describe``."""
+    return render_ros_yaml(parameters.defaults(), HEADER)
 
 
 def check(path: str | Path) -> PipelineConfig:
-    """Load ``path`` as the pipeline would; ConfigError names the problem."""
+    """Load ``path`` as the nodes and replay would; ConfigError names the problem."""
     nodes = read_ros_yaml(path)
-    ours = [n for n in NODES if n in nodes]
-    if not ours:
-        raise ConfigError(f'{path}: none of the nodes {", ".join(NODES)} is configured')
+    if not any(n in nodes for n in parameters.NODE_SECTIONS):
+        raise ConfigError(f'{path}: none of the nodes {", ".join(parameters.NODE_SECTIONS)} '
+                          f'is configured')
+    parameters.load(nodes, str(path))
     return PipelineConfig.from_ros_params(nodes, str(path))
 
 
@@ -60,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
             tmp.write_text(text)
         print(f'wrote {args.write}')
         return 0
-    config = check(args.check)
-    changed = _differences(config)
+    check(args.check)
+    changed = _differences(read_ros_yaml(args.check))
     print(f'{args.check}: valid' + (f'; differs from the defaults in {len(changed)} '
                                      f'parameter(s):' if changed else '; all defaults'))
     for line in changed:
@@ -69,11 +72,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _differences(config: PipelineConfig) -> list[str]:
-    default = PipelineConfig().to_ros_params()
+def _differences(nodes) -> list[str]:
+    default = parameters.defaults()
     out = []
-    for node, params in config.to_ros_params().items():
+    for node, params in nodes.items():
         for name, value in params.items():
-            if default[node].get(name) != value:
+            if node in default and default[node].get(name) != value:
                 out.append(f'{node}: {name} = {value!r} (default {default[node].get(name)!r})')
     return out

@@ -27,13 +27,14 @@ import logging
 import math
 import sys
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from laser_tracker.conversions import odometry_from_msg, scan_from_msg
+from laser_tracker.core.sync import OdometryWait
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError
@@ -176,20 +177,12 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
                 files.append(name)
 
         # A scan waits (in receive order) until odometry stamped at or after it has arrived,
-        # or ODOM_WAIT seconds of recording have passed: odometry that arrives after the
-        # scan it belongs to is still used (the paper's late, jittered odometry).
-        pending: deque = deque()
+        # or ODOM_WAIT seconds of recording have passed (core/sync.py, as the node does).
+        waiting: OdometryWait = OdometryWait(ODOM_WAIT)
 
-        def release(odom_stamp: float | None, now_ns: int | None) -> None:
-            while pending:
-                t_ns, index, scan = pending[0]
-                if odom_stamp is not None and scan.stamp <= odom_stamp or \
-                        now_ns is not None and now_ns - t_ns > ODOM_WAIT * 1e9 or \
-                        odom_stamp is None and now_ns is None:
-                    pending.popleft()
-                    process(index, scan)
-                else:
-                    break
+        def process_all(items) -> None:
+            for index, scan in items:
+                process(index, scan)
 
         try:
             for topic, t_ns, msg in iter_messages(bag_path, wanted):
@@ -205,11 +198,11 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
                         continue
                     pipeline.add_odometry(odo.stamp, pose)
                     odometry_messages += 1
-                    release(odo.stamp, t_ns)
+                    process_all(waiting.add_odometry(t_ns * 1e-9, odo.stamp))
                     continue
                 scan_index += 1
                 bar.update(1)
-                release(None, t_ns)
+                process_all(waiting.release(t_ns * 1e-9))
                 try:
                     scan = scan_from_msg(msg)
                 except (ScanError, ValueError, TypeError, AttributeError) as exc:
@@ -218,14 +211,14 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
                     skipped[_reason_key(reason)] += 1
                     continue
                 if has_odometry:
-                    pending.append((t_ns, scan_index, scan))
+                    process_all(waiting.add_scan(t_ns * 1e-9, scan.stamp, (scan_index, scan)))
                 else:
                     process(scan_index, scan)
-            release(None, None)
+            process_all(waiting.flush())
         except InputFileError as exc:
             damage = str(exc)
             log.error('replay stopped early: %s', damage)
-            release(None, None)
+            process_all(waiting.flush())
         wall = time.perf_counter() - wall0
         scans_done, background = state['scans_done'], state['background']
 
