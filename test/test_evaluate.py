@@ -360,3 +360,24 @@ def test_unlabelled_report_command_skips_bad_rows(tmp_path, capsys, caplog):
     assert 'malformed' in caplog.text
     assert (replay / 'report_tracks.png').is_file()
 
+
+
+def test_evaluation_reports_camera_captures_on_a_bundled_recording(tmp_path):
+    """The active-head row of the paper's Table 4 (captured by the camera), on fig8."""
+    from pathlib import Path
+
+    import pytest
+
+    from laser_tracker.tools.evaluate import evaluate_replay, format_table
+    from laser_tracker.tools.replay import replay_bag
+
+    bag = Path(__file__).resolve().parents[1] / 'bags' / 'fig8_robot_target'
+    if not bag.exists():
+        pytest.skip(f'{bag} not generated')
+    replay_bag(bag, out_dir=tmp_path, progress=False)
+    result = evaluate_replay(tmp_path, bag).result
+    cam = result['camera']
+    assert cam['objects_passing'] == 1
+    assert 0 <= cam['objects_captured'] <= cam['objects_passing']
+    assert cam['objects_captured'] == 1      # a slow robot in front of the scanner is captured
+    assert 'captured by the camera' in format_table(result)

@@ -67,3 +67,35 @@ def test_head_config_ranges_are_enforced():
     with pytest.raises(ConfigError, match='selection'):
         from_dict(HeadConfig, {'selection': 'random'}, 'head')
     assert np.isclose(from_dict(HeadConfig, {'max_lead': 2}, 'head').max_lead, 2.0)
+
+
+def _walker_passing(speed=1.0, y=3.0, period=0.2, seconds=8.0):
+    """A walker passing the platform from behind-left to front-left: x = -4 .. +4 at y."""
+    stamps = np.arange(0.0, seconds, period)
+    xs = -4.0 + speed * stamps
+    tracks = [np.array([[1, x, y, speed, 0.0, 80.0]]) for x in xs]
+    objects = [np.array([[7, x, y]]) for x in xs]
+    return stamps, tracks, objects
+
+
+def test_head_driven_by_tracks_captures_a_passing_walker():
+    from laser_tracker.core.head import captured_objects, simulate_head
+    stamps, tracks, objects = _walker_passing()
+    poses = np.zeros((stamps.size, 3))
+    pans = simulate_head(stamps, poses, tracks, HeadConfig())
+    assert captured_objects(pans, poses, objects, HeadConfig()) == {7}
+    # The head turned towards the walker (to the left), ahead of it.
+    assert pans.max() > 0.5
+
+
+def test_a_head_too_slow_to_catch_up_misses_a_fast_passer():
+    from laser_tracker.core.head import captured_objects, simulate_head
+    slow = HeadConfig(max_pan_speed=0.05, command_delay=1.0)
+    stamps, tracks, objects = _walker_passing(speed=1.5, y=1.5, seconds=4.0)
+    poses = np.zeros((stamps.size, 3))
+    pans = simulate_head(stamps, poses, tracks, slow)
+    # Straight ahead the camera sees only a narrow band the walker crosses in < 3 scans.
+    assert captured_objects(pans, poses, objects, slow) == set()
+    # No tracks: the head never moves, nothing is captured beyond what crosses the view.
+    still = simulate_head(stamps, poses, [np.zeros((0, 6))] * stamps.size, HeadConfig())
+    assert np.all(still == 0.0)

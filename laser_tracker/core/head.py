@@ -178,3 +178,51 @@ class HeadModel:
 
     def sees(self, bearing: float) -> bool:
         return abs(float(wrap_angle(bearing - self.pan))) <= self.config.field_of_view / 2
+
+
+def simulate_head(scan_stamps, platform_poses, confirmed_tracks,
+                  config: HeadConfig | None = None) -> np.ndarray:
+    """Pan angle the head reaches at each scan when driven by :class:`HeadPointer`.
+
+    ``platform_poses`` (N, 3) are the estimated poses the tracker used (odometry frame);
+    ``confirmed_tracks[k]`` the (id, x, y, vx, vy, weight) rows confirmed at scan k. The head
+    starts looking straight ahead. Used offline to score "captured by the camera".
+    """
+    config = config or HeadConfig()
+    pointer, head = HeadPointer(config), HeadModel(config)
+    pans = np.empty(len(scan_stamps))
+    for k, (stamp, pose) in enumerate(zip(scan_stamps, platform_poses)):
+        cmd = pointer.update(float(stamp), pose, confirmed_tracks[k])
+        if cmd is not None:
+            head.command(float(stamp), cmd.pan)
+        pans[k] = head.step(float(stamp))
+    return pans
+
+
+def captured_objects(pans, true_poses, object_rows, config: HeadConfig | None = None) -> set:
+    """Ids of the objects the simulated camera captured.
+
+    ``object_rows[k]`` holds (id, x, y) of the objects visible at scan k in the world frame;
+    ``true_poses`` (N, 3) the platform's true poses there. An object is captured once it stays
+    inside the camera's field of view (and range) for ``capture_samples`` consecutive scans.
+    """
+    config = config or HeadConfig()
+    half = config.field_of_view / 2
+    streak: dict[int, int] = {}
+    captured: set = set()
+    for pan, pose, rows in zip(pans, true_poses, object_rows):
+        rows = np.asarray(rows, dtype=float).reshape(-1, 3)
+        local = transform_points(inverse(pose), rows[:, 1:3])
+        bearing = np.arctan2(local[:, 1], local[:, 0])
+        inside = (np.abs(wrap_angle(bearing - pan)) <= half) & \
+            (np.hypot(local[:, 0], local[:, 1]) <= config.max_range)
+        seen = set()
+        for obj_id, ok in zip(rows[:, 0].astype(int).tolist(), inside.tolist()):
+            if ok:
+                streak[obj_id] = streak.get(obj_id, 0) + 1
+                seen.add(obj_id)
+                if streak[obj_id] >= config.capture_samples:
+                    captured.add(obj_id)
+        for obj_id in [i for i in streak if i not in seen]:
+            streak[obj_id] = 0
+    return captured

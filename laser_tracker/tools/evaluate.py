@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from laser_tracker.core.geometry import interpolate_poses
+from laser_tracker.core.head import HeadConfig, captured_objects, simulate_head
 from laser_tracker.errors import InputFileError, LaserTrackerError
 from laser_tracker.io.atomic import atomic_path
 from laser_tracker.tools.scoring import (EvaluationConfig, Scores, TrackTable, TruthTable,
@@ -202,12 +204,49 @@ def evaluate_replay(folder: str | Path, bag: str | Path,
     scores.unlabelled = {k: v for k, v in score_unlabelled(
         replay.tracks, replay.ego_stamps, config).items() if k != 'tracks'}
     made, source = hypotheses_made(replay)
+    camera = camera_capture(replay, truth, true_stamps, true_poses, tol, config)
     result = {'mode': 'ground_truth', 'replay': str(folder), 'bag': str(bag),
               'config': asdict(config), 'ground_truth_frames_not_replayed': skipped,
               'ground_truth_has_visibility': truth.has_visibility,
               'hypotheses_made': made, 'hypotheses_source': source}
     result.update(scores.as_dict())
+    result['camera'] = camera
     return Evaluation(result, scores, replay, truth, tracks, true_poses)
+
+
+def camera_capture(replay: Replay, truth: TruthTable, true_stamps, true_poses, tolerance,
+                   config: EvaluationConfig, head: HeadConfig | None = None) -> dict:
+    """The paper's Table 4 row: objects captured by the camera on the active head.
+
+    The head (``core.head``: target choice, lead of up to 3 s, command delay, pan speed
+    limit, field of view) is driven by the replay's confirmed tracks and the ego-motion poses;
+    an object is captured when it stays in the simulated camera's view for
+    ``capture_samples`` scans (judged with the true platform pose and object positions).
+    """
+    head = head or HeadConfig()
+    order = np.argsort(replay.ego_stamps, kind='stable')
+    stamps, poses = replay.ego_stamps[order], replay.ego_poses[order]
+    t = replay.tracks
+    keep = t.confirmed
+    scan_of_row = match_stamps(t.stamp[keep], stamps, tolerance)
+    rows = np.column_stack((t.track_id[keep], t.x[keep], t.y[keep], t.vx[keep], t.vy[keep],
+                            t.weight[keep]))
+    per_scan = [rows[scan_of_row == k] for k in range(stamps.size)]
+    pans = simulate_head(stamps, poses, per_scan, head)
+    truth_frame = match_stamps(stamps, truth.stamps, tolerance)
+    platform = interpolate_poses(true_stamps, true_poses, stamps)
+    moving = np.hypot(truth.vx, truth.vy) >= config.min_speed
+    visible_rows = truth.visible & moving
+    objects = []
+    for k in range(stamps.size):
+        f = truth_frame[k]
+        sel = visible_rows & (truth.frame == f) if f >= 0 else np.zeros(truth.frame.size, bool)
+        objects.append(np.column_stack((truth.obj_id[sel], truth.x[sel], truth.y[sel])))
+    captured = captured_objects(pans, platform, objects, head)
+    passing = set(truth.obj_id[visible_rows].tolist())
+    return {'objects_passing': len(passing), 'objects_captured': len(captured & passing),
+            'captured_share': (len(captured & passing) / len(passing)) if passing else None,
+            'head': asdict(head)}
 
 
 def report_unlabelled(folder: str | Path,
@@ -254,6 +293,11 @@ def format_table(result: dict) -> str:
         ('passing objects / detected',
          f'{result["objects_passing"]} / {result["objects_detected"]}'),
     ]
+    cam = result.get('camera')
+    if cam and cam['objects_passing']:
+        rows.append(('captured by the camera (simulated head)',
+                     f'{cam["objects_captured"]} of {cam["objects_passing"]} '
+                     f'({100 * cam["captured_share"]:.0f} %)'))
     lines += [f'  {k:<42} {v}' for k, v in rows]
     det, pre = result['clear_mot']['detectable'], result['clear_mot']['present']
     lines += ['', f'CLEAR MOT {"":<32} {"detectable":>11} {"present":>11}']
