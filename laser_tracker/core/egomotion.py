@@ -60,6 +60,7 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core import icp
+from laser_tracker.core.geometry import between, compose, wrap_scalar
 from laser_tracker.core.scan import Scan, beam_table
 
 log = logging.getLogger(__name__)
@@ -212,24 +213,6 @@ class EgoMotionEstimate:
         return self.source != SOURCE_NONE
 
 
-# ------------------------------------------------------------------------------ SE(2)
-
-
-def _wrap(a: float) -> float:
-    return (a + _PI) % (2.0 * _PI) - _PI
-
-
-def _compose(a, b) -> np.ndarray:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], _wrap(a[2] + b[2])])
-
-
-def _between(a, b) -> np.ndarray:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(b[2] - a[2])])
-
-
 # --------------------------------------------------------------------------- odometry
 
 
@@ -262,7 +245,7 @@ class OdometryBuffer:
         c = self.config
         dt = abs(t1 - t0)
         dd = math.hypot(p1[0] - p0[0], p1[1] - p0[1])
-        da = abs(_wrap(p1[2] - p0[2]))
+        da = abs(wrap_scalar(p1[2] - p0[2]))
         return (dd > 1.5 * c.max_translation_speed * dt + 0.1
                 or da > 1.5 * c.max_rotation_speed * dt + 0.1)
 
@@ -274,7 +257,7 @@ class OdometryBuffer:
             return 'bad odometry', 'odometry sample is not a time stamp and (x, y, theta)'
         if not (math.isfinite(t) and all(math.isfinite(v) for v in p)):
             return 'bad odometry', 'non-finite odometry sample (ignored)'
-        p = (p[0], p[1], _wrap(p[2]))
+        p = (p[0], p[1], wrap_scalar(p[2]))
         if not self._t or t > self._t[-1]:
             reason = None
             if self._t and self._jumped(self._t[-1], self._p[-1], t, p):
@@ -282,7 +265,8 @@ class OdometryBuffer:
                 q = self._p[-1]
                 reason = 'odometry jumped', (
                     f'odometry jumped {math.hypot(p[0] - q[0], p[1] - q[1]):.2f} m / '
-                    f'{math.degrees(abs(_wrap(p[2] - q[2]))):.1f} deg in {t - self._t[-1]:.3f} s '
+                    f'{math.degrees(abs(wrap_scalar(p[2] - q[2]))):.1f} deg '
+                    f'in {t - self._t[-1]:.3f} s '
                     f'(faster than the platform): new segment')
             self._t.append(t)
             self._p.append(p)
@@ -330,8 +314,9 @@ class OdometryBuffer:
                     ts[-1] - ts[-2] <= c.odom_max_gap:
                 p0, dt0 = self._p[-2], ts[-1] - ts[-2]
                 f = late / dt0
-                return np.array([p1[0] + (p1[0] - p0[0]) * f, p1[1] + (p1[1] - p0[1]) * f,
-                                 _wrap(p1[2] + _wrap(p1[2] - p0[2]) * f)]), self._seg[-1], ''
+                guess = np.array([p1[0] + (p1[0] - p0[0]) * f, p1[1] + (p1[1] - p0[1]) * f,
+                                  wrap_scalar(p1[2] + wrap_scalar(p1[2] - p0[2]) * f)])
+                return guess, self._seg[-1], ''
             return np.array(p1), self._seg[-1], ''
         if t < ts[0]:
             return None, -1, f'no odometry before the scan (first sample {ts[0] - t:.3f} s later)'
@@ -346,7 +331,7 @@ class OdometryBuffer:
         p0, p1 = self._p[i - 1], self._p[i]
         f = (t - t0) / (t1 - t0)
         return np.array([p0[0] + (p1[0] - p0[0]) * f, p0[1] + (p1[1] - p0[1]) * f,
-                         _wrap(p0[2] + _wrap(p1[2] - p0[2]) * f)]), self._seg[i], ''
+                         wrap_scalar(p0[2] + wrap_scalar(p1[2] - p0[2]) * f)]), self._seg[i], ''
 
 
 # -------------------------------------------------------------------------- estimator
@@ -402,7 +387,7 @@ class EgoMotionEstimator:
         if odo is not None:
             self.odometry.trim(t + c.odom_latency - c.odom_buffer)
             if self._has_mount:
-                odo = _compose(odo, self._mount)
+                odo = compose(odo, self._mount)
 
         if self._pose is None:
             return self._init(scan, pts, odo, seg, odo_reason)
@@ -417,7 +402,7 @@ class EgoMotionEstimator:
         elif seg != self._seg:
             inc_reason = 'odometry jumped since the previous scan'
         else:
-            inc = _between(self._odo, odo)
+            inc = between(self._odo, odo)
             speed = self._too_fast(inc, dt)
             if speed:
                 inc_reason = f'odometry step implies {speed} (jump?)'
@@ -432,7 +417,7 @@ class EgoMotionEstimator:
                        f'({inc_reason})')
             guess = self._constant_velocity(dt)
             lam = None
-        pred = _compose(self._pose, guess)
+        pred = compose(self._pose, guess)
 
         # --- ICP
         res = None
@@ -453,12 +438,12 @@ class EgoMotionEstimator:
             if not why:
                 icp_pose, info_icp, partial, why = self._fuse(res, pred, lam)
             if not why:
-                motion_icp = _between(self._pose, icp_pose)
+                motion_icp = between(self._pose, icp_pose)
                 speed = self._too_fast(motion_icp, dt)
                 if speed:
                     why = f'match implies {speed}'
                 elif inc is not None:
-                    corr = _between(pred, icp_pose)
+                    corr = between(pred, icp_pose)
                     dist = math.hypot(corr[0], corr[1])
                     if (dist > c.max_correction_translation
                             or abs(corr[2]) > c.max_correction_rotation):
@@ -470,7 +455,7 @@ class EgoMotionEstimator:
             diag = dict(inlier_ratio=res.inlier_ratio, rms=res.rms, iterations=res.iterations,
                         min_eigenvalue=float(res.eigenvalues[0]))
         if icp_pose is not None and not why:
-            motion = _between(self._pose, icp_pose)
+            motion = between(self._pose, icp_pose)
             if lam is not None:
                 cov = _inverse(info_icp + lam)
             else:  # no odometry: a guess worth ten times the odometry noise
@@ -493,7 +478,7 @@ class EgoMotionEstimator:
             reason = f'ICP refused ({why}) and no odometry ({inc_reason})'
             return self._none(scan, reason, n_pts, **diag)
 
-        self._pose = _compose(self._pose, motion)
+        self._pose = compose(self._pose, motion)
         self._stamp = t
         self._odo, self._seg = (odo, seg) if odo is not None else (None, -1)
         self._motion, self._dt = motion, dt
@@ -546,7 +531,7 @@ class EgoMotionEstimator:
         key = self._key_pose
         if key is None:
             return True
-        d = _between(key, self._pose)
+        d = between(key, self._pose)
         return (math.hypot(d[0], d[1]) >= self.config.map_min_translation
                 or abs(d[2]) >= self.config.map_min_rotation)
 
@@ -642,13 +627,13 @@ class EgoMotionEstimator:
         info = res.hessian / (max(res.sum_weights, 1e-12) * c.icp_model_sigma ** 2)
         pose = res.pose
         if lam is not None:
-            d = _between(pose, pred)
-            pose = _compose(pose, np.linalg.solve(info + lam, lam @ d))
+            d = between(pose, pred)
+            pose = compose(pose, np.linalg.solve(info + lam, lam @ d))
         if n_deg:
             # along degenerate directions (scaled coordinates z = delta / sv): the prediction
-            z = _between(pred, pose) / sv
+            z = between(pred, pose) / sv
             u = res.eigenvectors[:, ~deg]
-            pose = _compose(pred, sv * (u @ (u.T @ z)))
+            pose = compose(pred, sv * (u @ (u.T @ z)))
             # no ICP information along them
             v = res.eigenvectors[:, deg]
             proj = np.eye(3) - v @ v.T

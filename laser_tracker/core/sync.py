@@ -2,9 +2,10 @@
 
 A scan is held, in arrival order, until odometry stamped at or after it has arrived (so the
 ego-motion estimator can interpolate instead of extrapolating), or until ``max_wait`` seconds
-have passed since it arrived. Without odometry in the last ``max_wait`` seconds (a scanner with
-no odometry, or odometry that stopped) scans are not held at all. Used by offline replay (arrival = the bag's receive time) and by
-the ``ego_motion`` node (arrival = the node's clock), so both see the same order.
+have passed since it arrived. Without odometry in the last ``max_wait`` seconds (a scanner
+with no odometry, or odometry that stopped) scans are not held at all. Used by offline replay
+(arrival = the bag's receive time) and by the ``ego_motion`` node (arrival = the node's
+clock), so both see the same order.
 """
 from __future__ import annotations
 
