@@ -188,3 +188,49 @@ def test_neighbourhood_tolerance_needs_free_neighbours():
                              DifferenceConfig(free_neighbourhood=1))
     assert paper.tolist() == [True, True]
     assert tolerant.tolist() == [False, True]
+
+
+def test_no_return_free_bounds_only_beams_that_returned_nothing():
+    ranges = np.full(181, 3.0)
+    ranges[:40] = np.inf                    # no return on the right side
+    for limit in (0.0, 1.0):
+        grid = build_grid(scan_180(ranges), GridConfig(size=8.0, no_return_free=limit,
+                                                       free_erosion=0))
+        assert grid[cell_of(2.5, 0.0)] == FREE          # a return frees up to the hit
+        assert grid[cell_of(0.0, -1.5)] == (FREE if limit > 1.5 else UNKNOWN)
+    grid = build_grid(scan_180(ranges), GridConfig(size=8.0, no_return_free=0.0,
+                                                   free_erosion=0))
+    assert grid[cell_of(0.0, -0.5)] == UNKNOWN          # 0: a no-return beam frees nothing
+
+
+def test_free_depth_is_how_far_the_covering_beam_continued():
+    ranges = np.full(181, 3.0)
+    ranges[90] = 2.0                        # straight ahead the beam stops at 2 m
+    frame = GridBuilder(CFG).build(scan_180(ranges))
+    depth = frame.free_depth(np.array([[1.0, 0.0], [2.5, 0.0], [0.0, 1.0], [-1.0, 0.0]]))
+    assert depth[0] == pytest.approx(1.0, abs=1e-5)
+    assert depth[1] == pytest.approx(-0.5, abs=1e-5)    # beyond the hit: not seen free
+    assert depth[2] == pytest.approx(2.0, abs=1e-5)     # the +y beam
+    assert depth[3] == -np.inf                          # behind the scanner
+
+
+def test_deep_free_asks_for_free_space_beyond_the_motion_displacement():
+    from laser_tracker.core.difference import deep_free
+    previous = GridBuilder(CFG).build(scan_180(np.full(181, 3.0)))   # a wall all round at 3 m
+    motion = (0.4, 0.0, 0.0)                # the scanner moved 0.4 m forward since
+    near_wall = np.array([cell_of(2.35, 0.05)], float)   # 2.75 m from the old position
+    open_space = np.array([cell_of(1.05, 0.05)], float)
+    for depth, near_ok in ((0.0, True), (0.5, True), (1.0, False)):
+        cfg = DifferenceConfig(motion_depth=depth)
+        # 0.5 x 0.4 m = 0.2 m < 0.25 m of free space behind the cell; 1 x 0.4 m is not.
+        assert deep_free(near_wall, previous, motion, RES, N, cfg)[0] == near_ok, depth
+        assert deep_free(open_space, previous, motion, RES, N, cfg)[0]
+    # A turn adds range x |rotation|: 0.5 x (0 + 2.75 m x 0.4 rad) = 0.55 m of free space
+    # wanted, about 0.25 m there; in open space 0.5 x 1.05 m x 0.4 rad = 0.21 m < 1.95 m.
+    cfg = DifferenceConfig(motion_depth=0.5)
+    for r, ok in ((2.75, False), (1.05, True)):
+        turned = np.array([cell_of(r * math.cos(-0.4), r * math.sin(-0.4))], float)
+        assert deep_free(turned, previous, (0.0, 0.0, 0.4), RES, N, cfg)[0] == ok, r
+    # A stationary scanner needs nothing beyond FREE.
+    assert deep_free(np.array([cell_of(2.85, 0.05)], float), previous, (0.0, 0.0, 0.0),
+                     RES, N, cfg)[0]

@@ -201,3 +201,32 @@ def test_paper_values_are_the_defaults_where_the_paper_gives_them():
     assert c.hypotheses.blob_radius == 50.0 and c.hypotheses.distance_unit == 0.1
     assert (c.kalman.mode, c.kalman.q, c.kalman.r) == ('paper', 0.0005, 0.006)
     assert dataclasses.is_dataclass(c) and c.difference.free_neighbourhood == 0
+
+
+def test_motion_depth_keeps_movers_and_leaves_a_stationary_scanner_alone():
+    world = room()
+
+    def mover(t):                                 # crosses open space at 1 m/s
+        return [(3.0, -3.0 + 1.0 * (t - 1.0), 0.12)]
+
+    def near_wall(t):                             # walks along the x = 6 m wall, 0.3 m off
+        return [(5.58, -3.0 + 1.0 * (t - 1.0), 0.12)]
+
+    def moving(t):                                # the platform translates and turns
+        return np.array([0.3 * (t - 1.0), 0.0, 0.1 * (t - 1.0)])
+
+    paper = PipelineConfig().replace(difference={'motion_depth': 0.0})
+    assert PipelineConfig().difference.motion_depth > 0
+    # Stationary scanner: the motion-induced displacement is zero, so nothing changes, even
+    # for an object right in front of a wall.
+    a = run(Pipeline(), world, still, near_wall, 20)
+    b = run(Pipeline(paper), world, still, near_wall, 20)
+    for ra, rb in zip(a, b):
+        assert np.array_equal(ra.blobs.xy, rb.blobs.xy)
+    assert any(r.hypotheses.confirmed.any() for r in a)
+    # Moving platform: a person in open space is still confirmed, moving the right way.
+    res = run(Pipeline(), world, moving, mover, 25)
+    confirmed = [r.hypotheses.take(r.hypotheses.confirmed) for r in res]
+    vel = np.concatenate([h.velocity for h in confirmed if len(h)])
+    assert vel.shape[0] >= 5
+    assert np.median(vel[:, 1]) > 0.6

@@ -157,6 +157,29 @@ class GridFrame:
     ij: np.ndarray
     flat: np.ndarray
     index: int = 0          # which buffer of its builder's ``stack``
+    free: np.ndarray | None = None   # (beams,) free range of each beam after erosion (m)
+    angle_min: float = 0.0
+    angle_increment: float = 1.0
+
+    def free_depth(self, xy: np.ndarray) -> np.ndarray:
+        """How far (m) beyond each point ``xy`` (k, 2; this scan's frame) the beam covering it
+        (the one nearest its bearing, as in the ray table) continued freeing space: the free
+        range of that beam minus the point's range. Negative where the beam stopped short,
+        -inf outside the field of view."""
+        free = self.free
+        if free is None or free.size == 0:
+            return np.full(xy.shape[0], -np.inf)
+        rng = np.hypot(xy[:, 0], xy[:, 1])
+        inc = self.angle_increment
+        k = np.mod((np.arctan2(xy[:, 1], xy[:, 0]) - self.angle_min) * math.copysign(1.0, inc),
+                   2.0 * math.pi) / abs(inc)
+        beam = np.rint(k)
+        wrapped = np.rint(k - 2.0 * math.pi / abs(inc))
+        n = free.size
+        beam = np.where((beam > n - 1) & (wrapped >= 0), wrapped, beam)
+        inside = (beam >= 0) & (beam <= n - 1)
+        depth = free[np.where(inside, beam, 0).astype(np.intp)] - rng
+        return np.where(inside, depth, -np.inf)
 
     @property
     def grid(self) -> np.ndarray:
@@ -210,7 +233,9 @@ class GridBuilder:
             valid = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
             no_return = r >= scan.range_max
         fr = ext[:beams]
-        np.minimum(r, limit, out=fr, where=valid)
+        # A return frees space up to the hit (no_return_free bounds only the beams that
+        # returned nothing: capping returns at it made no_return_free = 0 free nothing at all).
+        np.copyto(fr, r, where=valid)
         fr[~valid] = 0.0
         fr[no_return] = limit
         if c.free_erosion:
@@ -243,7 +268,9 @@ class GridBuilder:
         m = n + 2 * PAD
         padded.reshape(-1)[(ij[:, 0] * m + ij[:, 1] + PAD * (m + 1)).astype(np.intp)] = \
             OCCUPIED
-        return GridFrame(padded=padded, points=pts, ij=ij, flat=flat, index=index)
+        return GridFrame(padded=padded, points=pts, ij=ij, flat=flat, index=index,
+                         free=fr.copy(), angle_min=float(scan.angle_min),
+                         angle_increment=float(scan.angle_increment))
 
 
 def build_grid(scan: Scan, config: GridConfig) -> np.ndarray:

@@ -55,8 +55,9 @@ import numpy as np
 
 from laser_tracker.config import ConfigError, describe, from_dict, read_ros_yaml, to_dict
 from laser_tracker.core.blobs import BlobConfig, Blobs, segment
-from laser_tracker.core.difference import (DifferenceConfig, changed_cells, difference_map,
-                                           not_occupied_before, relative_motion)
+from laser_tracker.core.difference import (DifferenceConfig, changed_cells, deep_free,
+                                           difference_map, not_occupied_before,
+                                           relative_motion)
 from laser_tracker.core.egomotion import SOURCE_INIT, EgoMotionConfig, EgoMotionEstimator
 from laser_tracker.core.grid import GridBuilder, GridConfig, GridFrame, transform_grid
 from laser_tracker.core.hypotheses import FrameResult, HypothesisArrays, HypothesisConfig, \
@@ -204,6 +205,9 @@ class Detector:
             changed[changed] = not_occupied_before(
                 frame.ij[changed], self.builder.stack, [e[0] for e in earlier],
                 [e[1] for e in earlier], pose, res)
+        if self.difference_config.motion_depth > 0 and changed.any():
+            changed[changed] = deep_free(frame.ij[changed], previous, motion, res, cells,
+                                         self.difference_config)
         d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:
