@@ -48,14 +48,31 @@ def _node_sections() -> dict[str, dict[str, type]]:
 NODE_SECTIONS = _node_sections()
 
 
-def defaults() -> dict[str, dict[str, Any]]:
-    """``{node: {dotted name: default}}`` for every node."""
+#: The paper's method alone (the reference mode): every measured addition that is not in the
+#: paper switched off. ``laser-tracker config --write PATH --paper`` renders it.
+PAPER_REFERENCE: dict[str, dict[str, Any]] = {
+    'detection': {
+        'grid.free_erosion': 0,            # free space only from each beam itself
+        'difference.memory': 0,            # Eq. 1 against the previous grid alone
+        'difference.motion_depth': 0.0,    # no platform-motion depth test
+        'blobs.position': 'changed',       # the blob is its changed cells
+        'blobs.centre_offset': 0.0,
+    },
+}
+
+
+def defaults(paper: bool = False) -> dict[str, dict[str, Any]]:
+    """``{node: {dotted name: default}}`` for every node; ``paper``: the reference mode."""
     out: dict[str, dict[str, Any]] = {}
     for node, sections in NODE_SECTIONS.items():
         params: dict[str, Any] = {}
         for prefix, cls in sections.items():
             for key, value in to_dict(cls()).items():
                 params[f'{prefix}.{key}' if prefix else key] = value
+        if paper:
+            unknown = set(PAPER_REFERENCE.get(node, {})) - set(params)
+            assert not unknown, f'PAPER_REFERENCE names unknown parameters {unknown}'
+            params.update(PAPER_REFERENCE.get(node, {}))
         out[node] = params
     return out
 

@@ -23,6 +23,18 @@ def test_committed_file_equals_the_defaults_rendering():
         '`laser-tracker config --write config/laser_tracker.yaml`')
 
 
+def test_committed_paper_reference_equals_its_rendering(tmp_path):
+    paper = REPO / 'config' / 'paper_reference.yaml'
+    assert paper.read_text() == render_defaults(paper=True), (
+        'regenerate with `laser-tracker config --write config/paper_reference.yaml --paper`')
+    config = check(paper)
+    assert config.difference.memory == 0 and config.grid.free_erosion == 0
+    assert config.blobs.position == 'changed'
+    # The paper's constants are the same in both modes.
+    assert config.hypotheses == PipelineConfig().hypotheses
+    assert config.kalman == PipelineConfig().kalman
+
+
 def test_rendering_is_a_ros_parameter_file_that_loads_back_to_the_defaults(tmp_path):
     text = render_defaults()
     doc = yaml.safe_load(text)
