@@ -241,6 +241,16 @@ def _covariance(factory: MessageFactory, diag6) -> Any:
     return cov if isinstance(factory, _BagFactory) else cov.tolist()
 
 
+def pose_variance_from_msg(msg) -> np.ndarray:
+    """nav_msgs/Odometry (or geometry_msgs/PoseWithCovarianceStamped) -> the 6 diagonal
+    terms of its pose covariance (x, y, z, roll, pitch, yaw), as ``odometry_to_msg`` takes
+    them; ValueError when the covariance is not 36 numbers."""
+    cov = np.asarray(msg.pose.covariance, dtype=float).ravel()
+    if cov.size != 36:
+        raise ValueError(f'pose covariance has {cov.size} terms, not 36')
+    return cov[::7].copy()
+
+
 def odometry_to_msg(factory: MessageFactory, odom: PlanarOdometry, pose_variance=None,
                     twist_variance=None):
     """PlanarOdometry -> nav_msgs/Odometry; variances are the 6 diagonal terms (or None)."""
@@ -368,7 +378,8 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
 
     A DELETEALL marker, one CYLINDER per blob (ns ``blobs``, id = index, position = centroid,
     scale.x = scale.y = extent, text = JSON ``{"cells": n, "structure": angle or null}``),
-    and one ARROW (ns ``scanner``, id 0) whose pose is the scanner pose.
+    and one ARROW (ns ``scanner``, id 0) whose pose is the scanner pose and whose text is JSON
+    ``{"restarted": bool}`` (the ego-motion restarted its pose chain: tracks are void).
     """
     f = factory
     stamp, frame_id = float(blobs.stamp), blobs.frame_id
@@ -400,7 +411,9 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
         'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='scanner',
         id=0, type=MARKER_ARROW, action=MARKER_ADD, pose=pose(x, y, theta),
         scale=f.make('geometry_msgs/msg/Vector3', x=0.4, y=0.05, z=0.05),
-        color=color(0.2, 0.8, 0.2, 0.8)))
+        color=color(0.2, 0.8, 0.2, 0.8),
+        text=json.dumps({'restarted': bool(getattr(blobs, 'restarted', False))},
+                        separators=(',', ':'))))
     return f.make('visualization_msgs/msg/MarkerArray', markers=markers)
 
 
@@ -411,7 +424,7 @@ def blobs_from_marker_array(msg):
     """
     from laser_tracker.core.blobs import Blobs
 
-    rows, origin, stamp, frame_id = [], None, math.nan, 'odom'
+    rows, origin, stamp, frame_id, restarted = [], None, math.nan, 'odom', False
     for m in msg.markers:
         if m.action != MARKER_ADD:
             continue
@@ -419,6 +432,10 @@ def blobs_from_marker_array(msg):
             p = m.pose
             origin = (p.position.x, p.position.y, yaw_from_quaternion(p.orientation))
             stamp, frame_id = stamp_to_sec(m.header.stamp), str(m.header.frame_id)
+            try:
+                restarted = bool(json.loads(m.text).get('restarted', False)) if m.text else False
+            except (json.JSONDecodeError, AttributeError):
+                restarted = False
         elif m.ns == 'blobs' and m.type == MARKER_CYLINDER:
             try:
                 extra = json.loads(m.text) if m.text else {}
@@ -432,7 +449,7 @@ def blobs_from_marker_array(msg):
     arr = np.array(rows, dtype=float).reshape(-1, 5)
     return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
                  cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
-                 structure=arr[:, 4].copy(), frame_id=frame_id)
+                 structure=arr[:, 4].copy(), frame_id=frame_id, restarted=restarted)
 
 
 # ----------------------------------------------------------------------------------- tracks

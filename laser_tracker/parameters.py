@@ -55,6 +55,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'grid.free_erosion': 0,            # free space only from each beam itself
         'difference.memory': 0,            # Eq. 1 against the previous grid alone
         'difference.motion_depth': 0.0,    # no platform-motion depth test
+        'difference.pose_gate': False,     # every scan reports, whatever its ego-motion quality
         'blobs.position': 'changed',       # the blob is its changed cells
         'blobs.centre_offset': 0.0,
     },

@@ -199,3 +199,144 @@ def test_out_of_range_parameter_is_refused_with_its_name(ros_context):
         assert node.tracker.config.w_inc == 40.0
     finally:
         node.destroy_node()
+
+
+def test_pose_quality_round_trip_through_the_odometry_message():
+    """What the ego_motion node writes into the pose covariance, the detection node reads
+    back unchanged (rclpy and rosbags messages alike)."""
+    from laser_tracker.conversions import (PlanarOdometry, bag_factory, odometry_to_msg,
+                                           pose_variance_from_msg, ros_factory)
+    from laser_tracker.core.difference import (FAILED_VARIANCE, DifferenceConfig, PoseQuality,
+                                               pose_trusted, quality_from_pose_variance,
+                                               quality_to_pose_variance)
+    from laser_tracker.io.bag import TYPESTORE
+
+    gate = DifferenceConfig()
+    qualities = {PoseQuality((2.5e-5, 1.3e-4, 7.1e-6), 1.0 - 0.93): True,
+                 PoseQuality((2.5e-5, 1.3e-4, 7.1e-6), 1.0 - 0.45): False,   # poor overlap
+                 PoseQuality((FAILED_VARIANCE,) * 3, 1.0 - 0.8): False,      # ICP refused
+                 PoseQuality(): True}                                        # first scan
+    odom = PlanarOdometry(stamp=12.5, x=1.0, y=-2.0, theta=0.3, child_frame_id='laser')
+    for factory in (ros_factory(), bag_factory(TYPESTORE)):
+        for q, trusted in qualities.items():
+            msg = odometry_to_msg(factory, odom, pose_variance=quality_to_pose_variance(q))
+            back = quality_from_pose_variance(pose_variance_from_msg(msg))
+            assert back == q
+            assert pose_trusted(back, gate) is trusted
+        plain = odometry_to_msg(factory, odom)        # no covariance: nothing against it
+        assert pose_trusted(quality_from_pose_variance(pose_variance_from_msg(plain)), gate)
+
+
+def _offline_gated(messages, config):
+    """Per scan stamp: blob positions and confirmed tracks of the offline pipeline."""
+    from laser_tracker.conversions import odometry_from_msg, scan_from_msg
+    from laser_tracker.core.pipeline import Pipeline
+
+    pipeline = Pipeline(config)
+    blobs, tracks = {}, {}
+    for topic, _, msg in messages:
+        if topic == '/odom':
+            odo = odometry_from_msg(msg)
+            pipeline.add_odometry(odo.stamp, odo.pose)
+            continue
+        res = pipeline.step(scan_from_msg(msg))
+        h = res.hypotheses
+        keep = h.confirmed
+        stamp = round(res.stamp, 6)
+        blobs[stamp] = res.blobs.xy.copy()
+        tracks[stamp] = sorted(zip(h.track_id[keep].tolist(), h.position[keep, 0].tolist(),
+                                   h.position[keep, 1].tolist()))
+    return blobs, tracks, pipeline.stats['gated: ego-motion not trusted']
+
+
+@pytest.mark.skipif(not BAG.exists(), reason=f'{BAG} not generated')
+def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, monkeypatch):
+    """With a strict inlier-ratio gate some scans of the recording are not trusted: the
+    quality crosses ego_motion -> detection in the message and the graph withholds the same
+    scans' blobs as ``Pipeline.step``."""
+    from rclpy.parameter import Parameter
+    from visualization_msgs.msg import MarkerArray
+
+    import laser_tracker.nodes.detection as detection
+    from laser_tracker.conversions import blobs_from_marker_array, objects_from_marker_array
+    from laser_tracker.core.pipeline import PipelineConfig
+
+    strict = 0.85          # exp1's matches explain 79-95 % of the points
+    config = PipelineConfig().replace(difference={'pose_min_inlier_ratio': strict})
+    messages = _bag_messages()
+    blobs, tracks, gated = _offline_gated(messages, config)
+    assert gated > 0, 'the strict gate should withhold some scans'
+    assert sum(len(b) == 0 for b in blobs.values()) >= gated
+
+    class StrictDetection(detection.DetectionNode):
+        def __init__(self, **kwargs):
+            super().__init__(parameter_overrides=[
+                Parameter('difference.pose_min_inlier_ratio', value=strict)], **kwargs)
+
+    monkeypatch.setattr(detection, 'DetectionNode', StrictDetection)
+    graph = _Graph(ros_context)
+    published_blobs = []
+    graph.io.create_subscription(MarkerArray, 'blobs', published_blobs.append, 100)
+    try:
+        assert graph.nodes[1].detector.difference_config.pose_min_inlier_ratio == strict
+        graph.wait_connected()
+        sent_odom = 0
+        for topic, _, msg in messages:
+            if topic == '/odom':
+                graph.odom_pub.publish(_to_ros(msg, topic))
+                sent_odom += 1
+                continue
+            graph.spin_until(lambda: graph.ego.odom_received >= sent_odom)
+            n, m = len(graph.tracks), len(published_blobs)
+            graph.scan_pub.publish(_to_ros(msg, topic))
+            graph.spin_until(lambda: len(graph.tracks) > n and len(published_blobs) > m)
+        got_blobs = {}
+        for array in published_blobs:
+            b = blobs_from_marker_array(array)
+            got_blobs[round(b.stamp, 6)] = b.xy
+        assert got_blobs.keys() == blobs.keys()
+        for stamp, xy in blobs.items():
+            np.testing.assert_allclose(got_blobs[stamp], xy, atol=1e-6, err_msg=str(stamp))
+        got_tracks = {}
+        for array in graph.tracks:
+            stamp, _, objects = objects_from_marker_array(array)
+            if not math.isnan(stamp):
+                got_tracks[round(stamp, 6)] = sorted((o.id, o.x, o.y) for o in objects)
+        for stamp, expected in tracks.items():
+            assert [t[0] for t in got_tracks[stamp]] == [t[0] for t in expected], stamp
+    finally:
+        graph.close()
+
+
+def test_ego_motion_restart_crosses_to_detection_and_tracking(ros_context):
+    """A restarted pose chain (source init) voids the odometry-frame history downstream too,
+    as Pipeline.step does offline: the flag rides in the pose covariance and the blobs."""
+    from laser_tracker.conversions import (blobs_from_marker_array, blobs_to_marker_array,
+                                           ros_factory)
+    from laser_tracker.core.blobs import Blobs
+    from laser_tracker.core.difference import (PoseQuality, quality_from_pose_variance,
+                                               quality_to_pose_variance)
+    from laser_tracker.nodes.tracking import TrackingNode
+
+    restarted = quality_from_pose_variance(quality_to_pose_variance(
+        PoseQuality(restarted=True)))
+    assert restarted.restarted and not restarted.failed
+    assert not quality_from_pose_variance([0.0] * 6).restarted
+
+    node = TrackingNode(context=ros_context)
+    try:
+        def blobs(stamp, x, restart=False):
+            b = Blobs(stamp=stamp, origin=np.zeros(3), xy=np.array([[x, 2.0]]),
+                      cells=np.array([3]), extent=np.array([0.2]),
+                      structure=np.array([np.nan]), restarted=restart)
+            msg = blobs_to_marker_array(ros_factory(), b)
+            assert blobs_from_marker_array(msg).restarted == restart
+            return msg
+
+        for k in range(6):                      # a blob walking at 1 m/s: hypotheses live
+            node.on_blobs(blobs(0.2 * k, 0.2 * k))
+        assert len(node.tracker.hyp.weight) > 0
+        node.on_blobs(blobs(1.2, 1.2, restart=True))
+        assert len(node.tracker.hyp.weight) == 0   # reset, then one lone blob: nothing yet
+    finally:
+        node.destroy_node()

@@ -230,3 +230,133 @@ def test_motion_depth_keeps_movers_and_leaves_a_stationary_scanner_alone():
     vel = np.concatenate([h.velocity for h in confirmed if len(h)])
     assert vel.shape[0] >= 5
     assert np.median(vel[:, 1]) > 0.6
+
+
+# ------------------------------------------------------------- ego-motion quality gate
+
+
+def _estimate(source, inlier_ratio=0.9, var=1e-4, rms=0.02):
+    """An ego-motion estimate; ``rms`` NaN = no ICP match was tried."""
+    from laser_tracker.core.egomotion import EgoMotionEstimate
+    return EgoMotionEstimate(stamp=1.0, pose=np.zeros(3), motion=np.zeros(3),
+                             covariance=np.diag([var, var, var / 10]), source=source,
+                             reason='test', inlier_ratio=inlier_ratio, rms=rms)
+
+
+def test_pose_quality_of_estimates_and_its_covariance_form():
+    from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, pose_quality,
+                                               pose_trusted, quality_from_pose_variance,
+                                               quality_to_pose_variance)
+    on = DifferenceConfig()
+    off = DifferenceConfig(pose_gate=False)
+    assert on.pose_gate and on.pose_min_inlier_ratio == 0.6
+    cases = [  # estimate, trusted by the default gate
+        (_estimate('icp', 0.9), True),
+        (_estimate('icp_partial', 0.7), True),
+        (_estimate('init', 0.0, rms=np.nan), True),    # first scan: nothing to match yet
+        (_estimate('icp', 0.5), False),                # poor overlap
+        (_estimate('odometry', 0.95), False),          # match tried and refused: odometry
+        (_estimate('odometry', 0.0), False),
+        (_estimate('odometry', 0.0, rms=np.inf), False),   # tried, nothing associated
+        (_estimate('odometry', 0.0, rms=np.nan), True),    # no match possible: odometry
+        (_estimate('none', 0.0, rms=np.nan), False),
+        (_estimate('icp', 0.9, var=np.nan), False),    # a covariance that is not a number
+    ]
+    for est, trusted in cases:
+        q = pose_quality(est)
+        assert pose_trusted(q, on) is trusted, est.source
+        assert pose_trusted(q, off)                # off: the previous behaviour
+        back = quality_from_pose_variance(quality_to_pose_variance(q))
+        assert pose_trusted(back, on) is trusted
+        if not q.failed:
+            assert back == q                       # bit for bit
+    assert pose_quality(_estimate('icp', 0.9)).variance[0] == pytest.approx(1e-4)
+    assert not pose_trusted(pose_quality(_estimate('icp', 0.5)),
+                            DifferenceConfig(pose_min_inlier_ratio=0.6))
+    assert pose_trusted(pose_quality(_estimate('icp', 0.5)),
+                        DifferenceConfig(pose_min_inlier_ratio=0.0))
+    # An all-zero covariance (a publisher that says nothing) is trusted; garbage is not.
+    assert pose_trusted(quality_from_pose_variance([0.0] * 6), on)
+    assert not pose_trusted(quality_from_pose_variance([np.inf, 0, 0, 0, 0, 0]), on)
+    assert not pose_trusted(quality_from_pose_variance([0, 0, -3.0, 0, 0, 0]), on)
+    assert pose_trusted(None, on) and pose_trusted(PoseQuality(), on)
+
+
+def test_untrusted_pose_reports_no_blobs_and_keeps_the_grid_history():
+    from laser_tracker.core.difference import PoseQuality, pose_quality
+    world = room()
+
+    def moving(t):
+        return np.array([0.3 * (t - 1.0), 0.0, 0.1 * (t - 1.0)])
+
+    def mover(t):                                 # crosses in front of the platform
+        return [(2.0 + 1.0 * (t - 1.0), 1.5, 0.15)]
+
+    scans = [make_scan(world, moving(1.0 + k * DT), 1.0 + k * DT, mover(1.0 + k * DT), seed=k)
+             for k in range(6)]
+    good = pose_quality(_estimate('icp', 0.9))
+    bad = {'odometry': pose_quality(_estimate('odometry', 0.9)),
+           'low overlap': pose_quality(_estimate('icp', 0.45)),
+           'failed variance': PoseQuality((1e6, 1e6, 1e6), 0.0)}
+    config = PipelineConfig()
+    for name, quality in bad.items():
+        reference = Detector(config.grid, config.difference, config.blobs)
+        gated = Detector(config.grid, config.difference, config.blobs)
+        off = Detector(config.grid, dataclasses.replace(config.difference, pose_gate=False),
+                       config.blobs)
+        for k, scan in enumerate(scans):
+            pose = moving(scan.stamp)
+            q = quality if k == 3 else good
+            ref = reference.detect(scan, pose, quality=good)
+            det = gated.detect(scan, pose, quality=q)
+            det_off = off.detect(scan, pose, quality=q)
+            assert np.array_equal(det_off.blobs.xy, ref.blobs.xy)     # off: as before
+            if k == 3:
+                assert ref.blobs.count > 0, 'the mover should be a blob on a trusted scan'
+                assert det.gated and det.blobs.count == 0 and det.changed == 0, name
+                assert not ref.gated and not det_off.gated
+            else:
+                assert not det.gated
+                # The gated scan's grid stayed in the history: the next scan is compared
+                # with it exactly as without the gate (no restart, no lost scan).
+                assert np.array_equal(det.blobs.xy, ref.blobs.xy), (name, k)
+            if k == 4:
+                assert det.blobs.count > 0, 'the scan after the gated one reports'
+
+
+def test_pipeline_withholds_blobs_of_a_scan_placed_by_odometry_and_tracking_coasts():
+    world = room()
+
+    def mover(t):
+        return [(3.0, -3.0 + 1.0 * (t - 1.0), 0.12)]
+
+    def run_with(config, bad_scans):
+        pipeline = Pipeline(config)
+        update = pipeline.ego.update
+        k = {'n': 0}
+
+        def degraded(scan):          # ICP "refused" on the chosen scans: odometry used
+            est = update(scan)
+            if k['n'] in bad_scans:
+                est = dataclasses.replace(est, source='odometry', reason='test: ICP refused')
+            k['n'] += 1
+            return est
+
+        pipeline.ego.update = degraded
+        return pipeline, run(pipeline, world, still, mover, 16)
+
+    bad = {10}
+    pipeline, res = run_with(PipelineConfig(), bad)
+    _, ref = run_with(PipelineConfig(), set())
+    _, off = run_with(PipelineConfig().replace(difference={'pose_gate': False}), bad)
+    assert ref[10].blobs.count > 0 and off[10].blobs.count == ref[10].blobs.count
+    assert res[10].blobs.count == 0 and res[10].detection.gated
+    assert pipeline.stats['gated: ego-motion not trusted'] == 1
+    for k in range(10):
+        assert np.array_equal(res[k].blobs.xy, ref[k].blobs.xy)
+    assert res[11].blobs.count > 0                  # the next scan reports again
+    # The confirmed track coasts through the gated scan and keeps its identity.
+    before = set(res[9].hypotheses.track_id[res[9].hypotheses.confirmed].tolist())
+    during = set(res[10].hypotheses.track_id[res[10].hypotheses.confirmed].tolist())
+    after = set(res[12].hypotheses.track_id[res[12].hypotheses.confirmed].tolist())
+    assert before and before & during & after

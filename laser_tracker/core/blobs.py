@@ -82,6 +82,7 @@ class Blobs:
     structure: np.ndarray                 # (b,) radians (odometry frame, mod pi) or NaN
     frame_id: str = 'odom'
     dropped: int = field(default=0)       # blobs dropped by max_blobs
+    restarted: bool = False               # the pose chain restarted here: tracks are void
 
     @property
     def count(self) -> int:

@@ -9,8 +9,11 @@ current frame and the difference map.
 
 Detection and tracking are separately callable, as two ROS nodes will run them:
 
-* ``Detector.detect(scan, pose) -> Detection`` (scan + scanner pose in the odometry frame ->
-  blobs; keeps the previous grid);
+* ``Detector.detect(scan, pose, quality=None) -> Detection`` (scan + scanner pose in the
+  odometry frame -> blobs; keeps the previous grid). ``quality``: the pose's
+  :class:`~laser_tracker.core.difference.PoseQuality` (``difference.pose_quality`` of the
+  ego-motion estimate; the ``ego_motion`` node sends it in its message's pose covariance):
+  a scan whose pose is not trusted reports no blobs (``difference.pose_gate``);
 * ``Tracker.update(blobs) -> FrameResult`` (``laser_tracker.core.hypotheses``; keeps the
   hypotheses and the previous frame's blobs).
 
@@ -31,10 +34,13 @@ Configuration: :class:`PipelineConfig` aggregates the sections declared in the m
 (``ego_motion.*``), node ``detection`` (``grid.*``, ``difference.*``, ``blobs.*``), node
 ``tracking`` (``hypotheses.*``, ``kalman.*``).
 
-Ego-motion: ``laser_tracker.core.egomotion.EgoMotionEstimator`` (odometry prior + ICP). A
-scan it cannot place (pose NaN, source ``none``) is skipped; when it restarts its pose chain
-(source ``init`` after the first scan) detection and tracking restart too, since odometry-frame
-positions before and after are unrelated.
+Ego-motion: ``laser_tracker.core.egomotion.EgoMotionEstimator`` (odometry prior + ICP). Its
+estimate's quality goes to the detector with the pose: a scan placed by odometry because ICP
+was refused, or by a poor match, reports no blobs (its grid is still kept; counted in
+``stats`` as ``gated: ego-motion not trusted``). A scan it cannot place (pose NaN, source
+``none``) is skipped; when it restarts its pose chain (source ``init`` after the first scan)
+detection and tracking restart too, since odometry-frame positions before and after are
+unrelated.
 
 Bad input: a scan stamped before the previous one resets detection, tracking and ego-motion
 (logged, counted in ``stats``); a scan with the same stamp as the previous one is skipped.
@@ -55,9 +61,9 @@ import numpy as np
 
 from laser_tracker.config import ConfigError, describe, from_dict, read_ros_yaml, to_dict
 from laser_tracker.core.blobs import BlobConfig, Blobs, segment
-from laser_tracker.core.difference import (DifferenceConfig, changed_cells, deep_free,
-                                           difference_map, not_occupied_before,
-                                           relative_motion)
+from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, changed_cells,
+                                           deep_free, difference_map, not_occupied_before,
+                                           pose_quality, pose_trusted, relative_motion)
 from laser_tracker.core.egomotion import SOURCE_INIT, EgoMotionConfig, EgoMotionEstimator
 from laser_tracker.core.grid import GridBuilder, GridConfig, GridFrame, transform_grid
 from laser_tracker.core.hypotheses import FrameResult, HypothesisArrays, HypothesisConfig, \
@@ -156,6 +162,7 @@ class Detection:
     grid: np.ndarray | None = None
     previous: np.ndarray | None = None     # previous grid in the current scanner frame
     difference: np.ndarray | None = None   # Equation 1 (bool)
+    gated: bool = False                # pose not trusted: no changes reported
 
 
 class Detector:
@@ -178,8 +185,13 @@ class Detector:
         self.previous_pose: np.ndarray | None = None
         self.earlier: deque = deque(maxlen=self.difference_config.memory + 1)
 
-    def detect(self, scan: Scan, pose, want_grids: bool = False) -> Detection:
-        """Grid of ``scan``, Eq. 1 against the previous grid, blobs (odometry frame)."""
+    def detect(self, scan: Scan, pose, want_grids: bool = False,
+               quality: PoseQuality | None = None) -> Detection:
+        """Grid of ``scan``, Eq. 1 against the previous grid, blobs (odometry frame).
+
+        ``quality`` (None = trusted): when ``difference.pose_gate`` does not trust the pose,
+        the grid is built and kept as history as usual but no change is reported.
+        """
         pose = np.asarray(pose, dtype=float)
         res = self.grid_config.resolution
         cells = self.builder.cells
@@ -190,10 +202,18 @@ class Detector:
         if previous is not None and self.difference_config.memory:
             self.earlier.append((previous.index, prev_pose))
         self.previous, self.previous_pose = frame, pose
-        if previous is None:
-            det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0)
+        gated = not pose_trusted(quality, self.difference_config)
+        if previous is None or gated:
+            det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
+                            gated=gated and previous is not None)
             if want_grids:
                 det.grid = frame.grid.copy()
+                if previous is not None:
+                    det.previous = transform_grid(previous.grid,
+                                                  relative_motion(prev_pose, pose), res)
+                    det.difference = difference_map(det.grid, det.previous)  # not reported
+            if times is not None:
+                times['grid'] += time.perf_counter() - t0
             return det
         motion = relative_motion(prev_pose, pose)
         t1 = time.perf_counter() if times is not None else 0.0
@@ -299,7 +319,8 @@ class Pipeline:
             self.sources[str(est.source)] += 1
             return self._skip(scan, 'no ego-motion pose: ' + _generic(est.reason))
         self.sources[str(est.source)] += 1
-        if est.source == SOURCE_INIT and self.stats['scans'] and not self._fresh:
+        quality = pose_quality(est)
+        if quality.restarted and self.stats['scans'] and not self._fresh:
             # The estimator restarted its pose chain: the odometry-frame history is void.
             log.warning('t=%.3f: ego-motion restarted (%s): detection and tracking restart',
                         scan.stamp, est.reason)
@@ -307,7 +328,11 @@ class Pipeline:
             self.detector.reset()
             self.tracker.reset()
         t1 = time.perf_counter() if prof else 0.0
-        det = self.detector.detect(scan, pose, want_grids)
+        det = self.detector.detect(scan, pose, want_grids, quality)
+        if det.gated:
+            log.debug('t=%.3f: ego-motion not trusted (%s, inlier ratio %.2f): no blobs',
+                      scan.stamp, est.source, est.inlier_ratio)
+            self.stats['gated: ego-motion not trusted'] += 1
         t2 = time.perf_counter() if prof else 0.0
         frame: FrameResult = self.tracker.update(det.blobs)
         if prof:

@@ -6,6 +6,20 @@ pose, the scanner pose in the odometry frame stamped with the scan's stamp (chil
 scan's frame). A scan that yields no pose (the match failed its checks and there is no usable
 odometry) is skipped with the estimator's reason logged: no pose is published from a failed
 match. Scans wait up to ``odom_wait`` for their odometry (``core/sync.py``), as in replay.
+
+Pose quality, in the message's ``pose.covariance`` (6 x 6 row-major, x y z roll pitch yaw;
+written by ``core.difference.quality_to_pose_variance``, read back by the ``detection``
+node with ``quality_from_pose_variance``, which gates scans on it, ``difference.pose_gate``):
+
+* x, y, yaw diagonal terms: the estimate's covariance of the motion since the previous scan
+  (scanner frame; m^2, m^2, rad^2): ICP fused with the odometry prior, or the odometry prior
+  alone when no match could be tried (too few points); 0 on the first scan; ``1e6`` each
+  when the match was tried, failed its checks and odometry was used instead (source
+  ``odometry``): the pose is then not trusted;
+* z diagonal term: the fraction of the scan's points ICP left unmatched (1 - inlier ratio;
+  0 on the first scan and without a match): a planar estimate has no z, and as an *un*matched
+  fraction an all-zero covariance (other publishers) means nothing is known against the pose;
+* everything else: 0. The twist is not estimated (zeros).
 """
 from __future__ import annotations
 
@@ -17,6 +31,7 @@ from sensor_msgs.msg import LaserScan
 
 from laser_tracker.conversions import (PlanarOdometry, odometry_from_msg, odometry_to_msg,
                                        ros_factory, scan_from_msg)
+from laser_tracker.core.difference import pose_quality, quality_to_pose_variance
 from laser_tracker.core.egomotion import EgoMotionEstimator
 from laser_tracker.core.scan import ScanError
 from laser_tracker.core.sync import OdometryWait
@@ -72,7 +87,8 @@ class EgoMotionNode(Node):
             return
         odom = PlanarOdometry(stamp=scan.stamp, x=pose[0], y=pose[1], theta=pose[2],
                               frame_id=self.node_config.odom_frame, child_frame_id=scan.frame_id)
-        self.pose_pub.publish(odometry_to_msg(self.factory, odom))
+        variance = quality_to_pose_variance(pose_quality(est))
+        self.pose_pub.publish(odometry_to_msg(self.factory, odom, pose_variance=variance))
 
 
 def main(args=None) -> None:

@@ -37,6 +37,8 @@ class TrackingNode(Node):
             self.get_logger().warning(f'time went backwards ({self.last_stamp:.3f} -> '
                                       f'{blobs.stamp:.3f} s): tracking restarts')
             self.tracker.reset()
+        elif blobs.restarted:
+            self.tracker.reset()
         self.last_stamp = blobs.stamp
         frame = self.tracker.update(blobs)
         if frame.bounded:
