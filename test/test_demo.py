@@ -46,10 +46,6 @@ def _smallest_bundled_bag():
 
 
 def test_demo_end_to_end_on_a_small_bundled_bag(tmp_path, capsys):
-    try:
-        import laser_tracker.tools.replay  # noqa: F401
-    except ImportError as exc:
-        pytest.skip(f'laser_tracker.tools.replay is not importable yet: {exc}')
     from laser_tracker.cli import main
 
     bag = _smallest_bundled_bag()

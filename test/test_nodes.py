@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ros_env import ros_context  # noqa: F401  (fixture)
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'exp1_stationary_single_walker'

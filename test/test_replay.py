@@ -12,7 +12,6 @@ import pytest
 
 from laser_tracker.cli import main
 from laser_tracker.conversions import PlanarOdometry, header, odometry_to_msg, scan_to_msg
-from laser_tracker.core.pipeline import PipelineConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.errors import InputFileError
 from laser_tracker.io.bag import FACTORY, BagWriter

@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from ros_env import isolate_ros_env, ros_context  # noqa: F401  (fixture)
+from ros_env import isolate_ros_env
 
 isolate_ros_env()  # before rclpy is imported anywhere in this process
 

@@ -64,7 +64,7 @@ from laser_tracker.core.blobs import BlobConfig, Blobs, segment
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, changed_cells,
                                            deep_free, difference_map, not_occupied_before,
                                            pose_quality, pose_trusted, relative_motion)
-from laser_tracker.core.egomotion import SOURCE_INIT, EgoMotionConfig, EgoMotionEstimator
+from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimator
 from laser_tracker.core.grid import GridBuilder, GridConfig, GridFrame, transform_grid
 from laser_tracker.core.hypotheses import FrameResult, HypothesisArrays, HypothesisConfig, \
     Tracker

@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 
 @contextlib.contextmanager
@@ -27,3 +30,20 @@ def atomic_path(target: str | Path, overwrite: bool = False):
         os.replace(tmp, target)
     finally:
         shutil.rmtree(tmp_root, ignore_errors=True)
+
+
+def write_json(path: str | Path, obj) -> Path:
+    """Write ``obj`` as indented JSON, atomically; numpy scalars and arrays become numbers
+    and lists."""
+    path = Path(path)
+    with atomic_path(path, overwrite=True) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, default=_json_default) + '\n')
+    return path
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f'{type(o).__name__} is not JSON serialisable')

@@ -290,9 +290,8 @@ def raw_log_run(path: Path):
 
 
 def save_figure(path: Path, log, scans, estimates) -> None:
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from laser_tracker.tools.figures import pyplot
+    plt = pyplot()
 
     from laser_tracker.core.geometry import transform_points
 

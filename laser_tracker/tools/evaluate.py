@@ -23,7 +23,8 @@ import numpy as np
 from laser_tracker.core.geometry import interpolate_poses
 from laser_tracker.core.head import HeadConfig, captured_objects, simulate_head
 from laser_tracker.errors import InputFileError, LaserTrackerError
-from laser_tracker.io.atomic import atomic_path
+from laser_tracker.io.atomic import write_json as atomic_write_json
+from laser_tracker.tools.figures import pyplot, save_figure
 from laser_tracker.tools.scoring import (EvaluationConfig, Scores, TrackTable, TruthTable,
                                          match_stamps, median_period, score, score_unlabelled,
                                          tracks_to_map)
@@ -350,31 +351,12 @@ def format_unlabelled(result: dict) -> str:
 
 
 def write_json(result: dict, path: str | Path) -> Path:
-    path = Path(path)
-    with atomic_path(path, overwrite=True) as tmp:
-        tmp.write_text(json.dumps(result, indent=2, default=_json_default) + '\n')
-    return path
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f'{type(o).__name__} is not JSON serialisable')
-
-
-def _save(fig, path: Path) -> Path:
-    with atomic_path(path, overwrite=True) as tmp:
-        fig.savefig(tmp, dpi=110)
-    return path
+    return atomic_write_json(path, result)
 
 
 def error_figure(errors: np.ndarray, path: Path, threshold: float) -> Path:
     """Fig. 8: histogram and CDF of the distance between matched tracks and their objects."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
     if errors.size:
@@ -392,7 +374,7 @@ def error_figure(errors: np.ndarray, path: Path, threshold: float) -> Path:
     ax2.set(xlabel='distance track - object (m)', ylabel='fraction', ylim=(0, 1.01),
             xlim=(0, threshold), title='cumulative')
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_figure(fig, path)
     plt.close(fig)
     return out
 
@@ -409,9 +391,7 @@ def tracks_figure(truth: TruthTable | None, tracks: TrackTable, false_ids: set[i
                   arrow_s: float = 0.5) -> Path:
     """Object trajectories (grey), tracks (colour) with velocity arrows covering ``arrow_s``
     seconds of travel, false ones as red crosses."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(7, 7))
     if platform is not None and len(platform):
@@ -438,7 +418,7 @@ def tracks_figure(truth: TruthTable | None, tracks: TrackTable, false_ids: set[i
     ax.set(aspect='equal', xlabel='x (m)', ylabel='y (m)', title=title)
     ax.legend(loc='best', fontsize=8)
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_figure(fig, path)
     plt.close(fig)
     return out
 

@@ -18,14 +18,16 @@ from laser_tracker.core.grid import FREE, OCCUPIED, UNKNOWN
 from laser_tracker.io.atomic import atomic_path
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (no display needed)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def save_figure(fig, path: str | Path) -> Path:
+    """Save atomically (no half-written image after an error)."""
     path = Path(path)
     with atomic_path(path, overwrite=True) as tmp:
         fig.savefig(tmp, dpi=110, format=path.suffix.lstrip('.') or 'png')
@@ -39,7 +41,7 @@ def tracks_figure(rows: np.ndarray, scanner: np.ndarray, path: str | Path,
     ``scanner`` (n, 3) scanner poses; ``background`` (m, 2) scan points for context (e.g. the
     first scan, odometry frame). Each track is a line coloured by id with velocity arrows
     (one second of travel) every ``arrow_period`` seconds."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 7))
     if background is not None and background.shape[0]:
         ax.plot(background[:, 0], background[:, 1], '.', color='0.75', ms=1.5,
@@ -66,7 +68,7 @@ def tracks_figure(rows: np.ndarray, scanner: np.ndarray, path: str | Path,
     if scanner.shape[0] or background is not None:
         ax.legend(loc='upper right', fontsize=8)
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_figure(fig, path)
     plt.close(fig)
     return out
 
@@ -80,7 +82,7 @@ def _grid_image(grid: np.ndarray) -> np.ndarray:
 
 def scan_figure(result, resolution: float, path: str | Path, title: str = '') -> Path:
     """Fig. 5 / Fig. 7 for one ``StepResult`` computed with ``want_grids=True``."""
-    plt = _plt()
+    plt = pyplot()
     det = result.detection
     grid = det.grid
     if grid is None:
@@ -140,6 +142,6 @@ def scan_figure(result, resolution: float, path: str | Path, title: str = '') ->
         a.set_ylabel('y (m)')
     fig.suptitle(title or f'scan at t = {result.stamp:.3f} s')
     fig.tight_layout()
-    out = _save(fig, path)
+    out = save_figure(fig, path)
     plt.close(fig)
     return out

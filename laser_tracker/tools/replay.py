@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import logging
 import math
 import sys
@@ -38,7 +37,7 @@ from laser_tracker.core.sync import OdometryWait
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError
-from laser_tracker.io.atomic import atomic_path
+from laser_tracker.io.atomic import atomic_path, write_json
 
 log = logging.getLogger(__name__)
 
@@ -257,8 +256,7 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
         files.append(TRACKS_FIGURE)
         files.append('summary.json')
         summary['files'] = files
-        with atomic_path(out_dir / 'summary.json', overwrite=True) as tmp:
-            tmp.write_text(json.dumps(summary, indent=2, default=_json_default) + '\n')
+        write_json(out_dir / 'summary.json', summary)
     else:
         summary['files'] = []
     return summary
@@ -300,9 +298,3 @@ def _progress(total: int, enabled: bool, name: str):
                 mininterval=0.2)
 
 
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f'{type(o).__name__} is not JSON serialisable')
