@@ -128,6 +128,8 @@ def read_ros_yaml(path: str | Path) -> dict[str, dict[str, Any]]:
         data = yaml.safe_load(path.read_text())
     except OSError as exc:
         raise ConfigError(f'{path}: cannot read: {exc.strerror or exc}') from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f'{path}: not a text file (byte {exc.start}: {exc.reason})') from None
     except yaml.YAMLError as exc:
         raise ConfigError(f'{path}: not valid YAML: {exc}') from None
     if data is None:

@@ -83,3 +83,12 @@ def test_check_refuses_bad_files_with_the_reason(tmp_path, capsys):
     assert main(['config', '--check', str(empty)]) == 2
     assert 'none of the nodes' in capsys.readouterr().err
     assert main(['config', '--check', str(tmp_path / 'missing.yaml')]) == 2
+
+
+def test_a_binary_or_missing_file_is_a_clear_error(tmp_path, capsys):
+    binary = tmp_path / 'image.yaml'
+    binary.write_bytes(bytes(range(256)) * 4)
+    assert main(['config', '--check', str(binary)]) == 2
+    assert 'not a text file' in capsys.readouterr().err
+    assert main(['config', '--check', str(tmp_path / 'missing.yaml')]) == 2
+    assert 'cannot read' in capsys.readouterr().err
