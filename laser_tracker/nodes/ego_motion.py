@@ -19,6 +19,8 @@ node with ``quality_from_pose_variance``, which gates scans on it, ``difference.
 * z diagonal term: the fraction of the scan's points ICP left unmatched (1 - inlier ratio;
   0 on the first scan and without a match): a planar estimate has no z, and as an *un*matched
   fraction an all-zero covariance (other publishers) means nothing is known against the pose;
+* roll diagonal term: 1 when the ego-motion (re)started its pose chain at this scan (source
+  ``init``): detection and tracking forget their odometry-frame history, as offline;
 * everything else: 0. The twist is not estimated (zeros).
 """
 from __future__ import annotations
