@@ -51,6 +51,11 @@ NODE_SECTIONS = _node_sections()
 #: The paper's method alone (the reference mode): every measured addition that is not in the
 #: paper switched off. ``laser-tracker config --write PATH --paper`` renders it.
 PAPER_REFERENCE: dict[str, dict[str, Any]] = {
+    'ego_motion': {                        # each scan matched against the previous scan
+        'ego_motion.map_scans': 1,
+        'ego_motion.map_min_translation': 0.0,
+        'ego_motion.map_min_rotation': 0.0,
+    },
     'detection': {
         'grid.free_erosion': 0,            # free space only from each beam itself
         'difference.memory': 0,            # Eq. 1 against the previous grid alone
