@@ -51,6 +51,23 @@ def sec_to_ns(t: float) -> int:
     return sec * 1_000_000_000 + nsec
 
 
+def stamp_to_ns(stamp) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds, exactly.
+
+    Use it to compare or pair stamps: seconds as a float have only ~0.24 us resolution at
+    today's epoch times, so a float round trip does not give back the same stamp.
+    """
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def restamp(msg, stamp):
+    """Set the exact header stamp (a Time message) on ``msg``, or on every marker of a
+    MarkerArray, so outputs carry their input's stamp bit for bit. Returns ``msg``."""
+    for item in getattr(msg, 'markers', None) or [msg]:
+        item.header.stamp = stamp
+    return msg
+
+
 # ----------------------------------------------------------------------------- orientation
 
 

@@ -339,3 +339,30 @@ def test_ego_motion_restart_crosses_to_detection_and_tracking(ros_context):
         assert len(node.tracker.hyp.weight) == 0   # reset, then one lone blob: nothing yet
     finally:
         node.destroy_node()
+
+
+def test_epoch_stamps_pair_exactly_and_outputs_keep_the_scan_stamp(ros_context):
+    """Stamps at today's epoch (1.7e9 s) do not survive a float round trip: pairing and
+    output stamps must use the header integers, or the graph silently publishes nothing."""
+    from builtin_interfaces.msg import Time
+
+    from laser_tracker.conversions import ros_factory, scan_to_msg, stamp_to_ns
+    from laser_tracker.core.scan import Scan
+
+    graph = _Graph(ros_context)
+    try:
+        graph.wait_connected()
+        sent = []
+        for k in range(8):
+            msg = scan_to_msg(ros_factory(), Scan(
+                stamp=0.0, ranges=np.full(361, 4.0), angle_min=-math.pi / 2,
+                angle_increment=math.radians(0.5), range_min=0.01, range_max=8.0))
+            msg.header.stamp = Time(sec=1_700_000_000 + k // 5,
+                                    nanosec=123_456_789 + 200_000_001 * (k % 5))
+            sent.append(stamp_to_ns(msg.header.stamp))
+            graph.scan_pub.publish(msg)
+            graph.spin_until(lambda: len(graph.tracks) > k)
+        got = [stamp_to_ns(a.markers[0].header.stamp) for a in graph.tracks]
+        assert got == sent
+    finally:
+        graph.close()

@@ -15,7 +15,8 @@ from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
 from laser_tracker.conversions import (joint_state_msg, objects_from_marker_array,
-                                       odometry_from_msg, point_stamped_msg, ros_factory)
+                                       odometry_from_msg, point_stamped_msg, restamp,
+                                       ros_factory)
 from laser_tracker.core.head import HeadPointer
 from laser_tracker.nodes import common
 
@@ -49,12 +50,11 @@ class ActiveHeadNode(Node):
         cmd = self.pointer.update(stamp, self.pose.pose, tracks)
         if cmd is None:
             return
-        cfg = self.node_config
-        self.command_pub.publish(joint_state_msg(self.factory, stamp,
-                                                 [cfg.pan_joint, cfg.tilt_joint],
-                                                 [cmd.pan, cmd.tilt]))
-        self.target_pub.publish(point_stamped_msg(self.factory, stamp, frame_id or 'odom',
-                                                  cmd.aim_x, cmd.aim_y))
+        cfg, exact = self.node_config, msg.markers[0].header.stamp
+        self.command_pub.publish(restamp(joint_state_msg(
+            self.factory, stamp, [cfg.pan_joint, cfg.tilt_joint], [cmd.pan, cmd.tilt]), exact))
+        self.target_pub.publish(restamp(point_stamped_msg(
+            self.factory, stamp, frame_id or 'odom', cmd.aim_x, cmd.aim_y), exact))
 
 
 def main(args=None) -> None:

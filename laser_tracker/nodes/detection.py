@@ -20,8 +20,8 @@ from sensor_msgs.msg import LaserScan
 from visualization_msgs.msg import MarkerArray
 
 from laser_tracker.conversions import (blobs_to_marker_array, odometry_from_msg,
-                                       pose_variance_from_msg, ros_factory, scan_from_msg,
-                                       sec_to_ns)
+                                       pose_variance_from_msg, restamp, ros_factory,
+                                       scan_from_msg, stamp_to_ns)
 from laser_tracker.core.difference import FAILED_VARIANCE, PoseQuality, \
     quality_from_pose_variance
 from laser_tracker.core.pipeline import Detector
@@ -47,7 +47,8 @@ class DetectionNode(Node):
         except ScanError as exc:
             self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
             return
-        self.pairer.add_left(sec_to_ns(scan.stamp), scan)
+        # Paired by the exact header stamps (integers): floats cannot hold epoch stamps.
+        self.pairer.add_left(stamp_to_ns(msg.header.stamp), (scan, msg.header.stamp))
 
     def on_pose(self, msg: Odometry) -> None:
         pose = odometry_from_msg(msg)
@@ -58,10 +59,10 @@ class DetectionNode(Node):
                                       f'at {pose.stamp:.3f} s is not trusted',
                                       throttle_duration_sec=5.0)
             quality = PoseQuality((FAILED_VARIANCE,) * 3, 1.0)
-        self.pairer.add_right(sec_to_ns(pose.stamp), (pose, quality))
+        self.pairer.add_right(stamp_to_ns(msg.header.stamp), (pose, quality))
 
-    def on_pair(self, scan, pose_quality) -> None:
-        pose, quality = pose_quality
+    def on_pair(self, scan_stamp, pose_quality) -> None:
+        (scan, stamp), (pose, quality) = scan_stamp, pose_quality
         if self.last_stamp is not None and scan.stamp <= self.last_stamp:
             self.get_logger().warning(f'time went backwards ({self.last_stamp:.3f} -> '
                                       f'{scan.stamp:.3f} s): detection restarts')
@@ -75,7 +76,8 @@ class DetectionNode(Node):
         self.detector.frame_id = pose.frame_id or self.detector.frame_id
         detection = self.detector.detect(scan, pose.pose, quality=quality)
         detection.blobs.restarted = restarted
-        self.blobs_pub.publish(blobs_to_marker_array(self.factory, detection.blobs))
+        self.blobs_pub.publish(restamp(blobs_to_marker_array(self.factory, detection.blobs),
+                                       stamp))
 
 
 def main(args=None) -> None:

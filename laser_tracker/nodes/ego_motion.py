@@ -32,7 +32,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
 
 from laser_tracker.conversions import (PlanarOdometry, odometry_from_msg, odometry_to_msg,
-                                       ros_factory, scan_from_msg)
+                                       restamp, ros_factory, scan_from_msg)
 from laser_tracker.core.difference import pose_quality, quality_to_pose_variance
 from laser_tracker.core.egomotion import EgoMotionEstimator
 from laser_tracker.core.scan import ScanError
@@ -73,13 +73,14 @@ class EgoMotionNode(Node):
         except ScanError as exc:
             self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
             return
-        self.process(self.waiting.add_scan(self.now(), scan.stamp, scan))
+        self.process(self.waiting.add_scan(self.now(), scan.stamp, (scan, msg.header.stamp)))
 
-    def process(self, scans) -> None:
-        for scan in scans:
-            self.estimate(scan)
+    def process(self, items) -> None:
+        for scan, stamp in items:
+            self.estimate(scan, stamp)
 
-    def estimate(self, scan) -> None:
+    def estimate(self, scan, stamp) -> None:
+        """Estimate and publish the pose of ``scan``, stamped exactly as the scan was."""
         # The estimator resets itself when time goes backwards (a bag replayed in a loop).
         est = self.estimator.update(scan)
         pose = np.asarray(est.pose, dtype=float)
@@ -90,7 +91,8 @@ class EgoMotionNode(Node):
         odom = PlanarOdometry(stamp=scan.stamp, x=pose[0], y=pose[1], theta=pose[2],
                               frame_id=self.node_config.odom_frame, child_frame_id=scan.frame_id)
         variance = quality_to_pose_variance(pose_quality(est))
-        self.pose_pub.publish(odometry_to_msg(self.factory, odom, pose_variance=variance))
+        out = odometry_to_msg(self.factory, odom, pose_variance=variance)
+        self.pose_pub.publish(restamp(out, stamp))
 
 
 def main(args=None) -> None:

@@ -11,7 +11,7 @@ from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from laser_tracker.conversions import (blobs_from_marker_array, hypotheses_to_objects,
-                                       objects_to_marker_array, ros_factory)
+                                       objects_to_marker_array, restamp, ros_factory)
 from laser_tracker.core.hypotheses import Tracker
 from laser_tracker.nodes import common
 
@@ -44,11 +44,12 @@ class TrackingNode(Node):
         if frame.bounded:
             self.get_logger().warning('hypothesis bound reached', throttle_duration_sec=5.0)
         f, stamp, frame_id = self.factory, blobs.stamp, blobs.frame_id
-        self.tracks_pub.publish(objects_to_marker_array(
-            f, hypotheses_to_objects(frame.hypotheses, True), stamp, frame_id, 'tracks'))
-        self.hypotheses_pub.publish(objects_to_marker_array(
+        exact = msg.markers[0].header.stamp     # the scan's stamp, bit for bit
+        self.tracks_pub.publish(restamp(objects_to_marker_array(
+            f, hypotheses_to_objects(frame.hypotheses, True), stamp, frame_id, 'tracks'), exact))
+        self.hypotheses_pub.publish(restamp(objects_to_marker_array(
             f, hypotheses_to_objects(frame.hypotheses, False), stamp, frame_id, 'hypotheses',
-            color=(0.6, 0.6, 0.6, 0.5)))
+            color=(0.6, 0.6, 0.6, 0.5)), exact))
 
 
 def main(args=None) -> None:
