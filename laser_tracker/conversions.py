@@ -154,8 +154,8 @@ class _BagFactory(MessageFactory):
 
 
 def _numpy_dtype(base: str):
-    return {'bool': np.bool_, 'byte': np.uint8, 'char': np.uint8, 'octet': np.uint8}.get(
-        base, np.dtype(base) if base not in ('bool', 'byte', 'char', 'octet') else None)
+    """numpy dtype of a ROS primitive array element (byte, char and octet are uint8)."""
+    return np.uint8 if base in ('byte', 'char', 'octet') else np.dtype(base)
 
 
 _ROS_FACTORY: _RosFactory | None = None

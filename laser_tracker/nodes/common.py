@@ -6,6 +6,8 @@ from collections.abc import Callable
 
 import rclpy
 
+from laser_tracker.conversions import scan_from_msg
+from laser_tracker.core.scan import Scan, ScanError
 from laser_tracker.nodes.params import declare_section
 from laser_tracker.parameters import NODE_SECTIONS
 
@@ -15,6 +17,15 @@ def declare_node_parameters(node, node_name: str) -> dict:
     ``{section prefix: section instance}`` ('' = the node's plain-named parameters)."""
     return {prefix: declare_section(node, cls, prefix)
             for prefix, cls in NODE_SECTIONS[node_name].items()}
+
+
+def scan_or_warn(node, msg) -> Scan | None:
+    """The Scan of a LaserScan message, or None after a throttled warning saying why."""
+    try:
+        return scan_from_msg(msg)
+    except ScanError as exc:
+        node.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
+        return None
 
 
 def run(node_factory: Callable[[], object], args=None) -> None:

@@ -21,11 +21,10 @@ from visualization_msgs.msg import MarkerArray
 
 from laser_tracker.conversions import (blobs_to_marker_array, odometry_from_msg,
                                        pose_variance_from_msg, restamp, ros_factory,
-                                       scan_from_msg, stamp_to_ns)
+                                       stamp_to_ns)
 from laser_tracker.core.difference import FAILED_VARIANCE, PoseQuality, \
     quality_from_pose_variance
 from laser_tracker.core.pipeline import Detector
-from laser_tracker.core.scan import ScanError
 from laser_tracker.nodes import common
 
 
@@ -42,10 +41,8 @@ class DetectionNode(Node):
         self.create_subscription(Odometry, 'ego_motion', self.on_pose, qos_profile_sensor_data)
 
     def on_scan(self, msg: LaserScan) -> None:
-        try:
-            scan = scan_from_msg(msg)
-        except ScanError as exc:
-            self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
+        scan = common.scan_or_warn(self, msg)
+        if scan is None:
             return
         # Paired by the exact header stamps (integers): floats cannot hold epoch stamps.
         self.pairer.add_left(stamp_to_ns(msg.header.stamp), (scan, msg.header.stamp))

@@ -32,10 +32,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
 
 from laser_tracker.conversions import (PlanarOdometry, odometry_from_msg, odometry_to_msg,
-                                       restamp, ros_factory, scan_from_msg)
+                                       restamp, ros_factory)
 from laser_tracker.core.difference import pose_quality, quality_to_pose_variance
 from laser_tracker.core.egomotion import EgoMotionEstimator
-from laser_tracker.core.scan import ScanError
 from laser_tracker.core.sync import OdometryWait
 from laser_tracker.nodes import common
 
@@ -68,10 +67,8 @@ class EgoMotionNode(Node):
         self.process(self.waiting.add_odometry(self.now(), odo.stamp))
 
     def on_scan(self, msg: LaserScan) -> None:
-        try:
-            scan = scan_from_msg(msg)
-        except ScanError as exc:
-            self.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
+        scan = common.scan_or_warn(self, msg)
+        if scan is None:
             return
         self.process(self.waiting.add_scan(self.now(), scan.stamp, (scan, msg.header.stamp)))
 

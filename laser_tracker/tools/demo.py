@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from laser_tracker.errors import InputFileError, LaserTrackerError
+from laser_tracker.io.atomic import write_json
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
         result = ev.report_unlabelled(out, eval_config)
     figures = ev.write_figures(result, out)
     result.result['figures'] = [str(p) for p in figures]
-    json_path = ev.write_json(result.result, out / 'evaluation.json')
+    json_path = write_json(out / 'evaluation.json', result.result)
     print(ev.format_table(result.result))
     print()
     print('figures:')

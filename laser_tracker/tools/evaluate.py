@@ -23,7 +23,7 @@ import numpy as np
 from laser_tracker.core.geometry import interpolate_poses
 from laser_tracker.core.head import HeadConfig, captured_objects, simulate_head
 from laser_tracker.errors import InputFileError, LaserTrackerError
-from laser_tracker.io.atomic import write_json as atomic_write_json
+from laser_tracker.io.atomic import write_json
 from laser_tracker.tools.figures import pyplot, save_figure
 from laser_tracker.tools.scoring import (EvaluationConfig, Scores, TrackTable, TruthTable,
                                          match_stamps, median_period, score, score_unlabelled,
@@ -350,10 +350,6 @@ def format_unlabelled(result: dict) -> str:
     return '\n'.join(lines)
 
 
-def write_json(result: dict, path: str | Path) -> Path:
-    return atomic_write_json(path, result)
-
-
 def error_figure(errors: np.ndarray, path: Path, threshold: float) -> Path:
     """Fig. 8: histogram and CDF of the distance between matched tracks and their objects."""
     plt = pyplot()
@@ -509,7 +505,7 @@ def run(args: argparse.Namespace) -> int:
     result = ev.result
     figures = [] if args.no_figures else write_figures(ev, folder)
     result['figures'] = [str(p) for p in figures]
-    out = write_json(result, args.json or folder / 'evaluation.json')
+    out = write_json(args.json or folder / 'evaluation.json', result)
     print(format_table(result))
     print()
     for p in figures:
