@@ -14,7 +14,7 @@ setup: $(STAMP)
 $(STAMP): setup.py setup.cfg package.xml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[wheels,eval,test,bench]'
+	$(BIN)/python -m pip install --quiet -e '.[wheels,tools,train,test,bench]'
 	touch $(STAMP)
 
 demo: setup

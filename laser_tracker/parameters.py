@@ -14,7 +14,7 @@ from laser_tracker.config import ConfigError, from_dict, param, to_dict
 from laser_tracker.core.head import HeadConfig
 from laser_tracker.core.pipeline import NODES as PIPELINE_NODES
 from laser_tracker.core.pipeline import PipelineConfig
-from laser_tracker.sick.driver import SickLmsConfig
+from laser_tracker.sick.config import SickLmsConfig
 
 
 @dataclass(frozen=True)

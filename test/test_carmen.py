@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from laser_tracker.cli import main
+from laser_tracker.tools.cli import main
 from laser_tracker.errors import InputFileError
-from laser_tracker.io.bag import read_odometry, read_scans, topics
-from laser_tracker.io.carmen import detect_max_reading, flaser_geometry, read_carmen
+from laser_tracker.tools.bag import read_odometry, read_scans, topics
+from laser_tracker.tools.carmen import detect_max_reading, flaser_geometry, read_carmen
 
 DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'carmen'
 

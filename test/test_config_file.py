@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from laser_tracker.cli import main
+from laser_tracker.tools.cli import main
 from laser_tracker.config import read_ros_yaml
 from laser_tracker.core.pipeline import NODES, PipelineConfig
 from laser_tracker.parameters import NODE_SECTIONS

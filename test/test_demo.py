@@ -33,7 +33,7 @@ def test_bag_folders_include_the_source_tree():
 
 
 def test_demo_on_an_unknown_recording_is_a_clear_error(capsys):
-    from laser_tracker.cli import main
+    from laser_tracker.tools.cli import main
     assert main(['demo', 'no_such_recording_anywhere']) == 2
     assert 'no_such_recording_anywhere' in capsys.readouterr().err
 
@@ -46,7 +46,7 @@ def _smallest_bundled_bag():
 
 
 def test_demo_end_to_end_on_a_small_bundled_bag(tmp_path, capsys):
-    from laser_tracker.cli import main
+    from laser_tracker.tools.cli import main
 
     bag = _smallest_bundled_bag()
     out = tmp_path / 'demo'

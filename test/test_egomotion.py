@@ -16,7 +16,7 @@ from laser_tracker.core.egomotion import (SOURCE_ICP, SOURCE_INIT, SOURCE_NONE,
 from laser_tracker.core.geometry import between, compose
 from laser_tracker.core.icp import LocalMap, align, scan_normals
 from laser_tracker.core.scan import Scan
-from laser_tracker.io.bag import PoseTrack
+from laser_tracker.tools.bag import PoseTrack
 
 DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'carmen'
 DEG = math.pi / 180.0

@@ -10,7 +10,7 @@ import pytest
 
 from laser_tracker.conversions import MovingObject
 from laser_tracker.core.geometry import compose, inverse, transform_points
-from laser_tracker.io.bag import GroundTruthFrame
+from laser_tracker.tools.bag import GroundTruthFrame
 from laser_tracker.tools.scoring import (EvaluationConfig, TrackTable, TruthTable, score,
                                          score_unlabelled, segment_paths, tracks_to_map)
 
@@ -250,7 +250,7 @@ def write_replay(folder: Path, ego_rows, track_rows, summary=None, confirmed_wor
 def write_bag(path: Path, n=30, ground_truth=True):
     from laser_tracker.conversions import PlanarOdometry, objects_to_marker_array, \
         odometry_to_msg
-    from laser_tracker.io.bag import FACTORY, BagWriter
+    from laser_tracker.tools.bag import FACTORY, BagWriter
 
     platform = (1.0, 2.0, 0.5)  # a stationary platform away from the map origin
     with BagWriter(path) as bag:
@@ -267,7 +267,7 @@ def write_bag(path: Path, n=30, ground_truth=True):
 
 
 def run_cli(*argv):
-    from laser_tracker.cli import main
+    from laser_tracker.tools.cli import main
     return main(list(map(str, argv)))
 
 

@@ -10,13 +10,13 @@ import pytest
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.typesys import Stores, get_typestore
 
-from laser_tracker.cli import main
+from laser_tracker.tools.cli import main
 from laser_tracker.conversions import (PlanarOdometry, bag_factory, odometry_to_msg,
                                        scan_to_msg, stamp_to_sec)
 from laser_tracker.core.scan import Scan
-from laser_tracker.io.bag import iter_messages, read_odometry, topics
-from laser_tracker.sim.recorder import record
-from laser_tracker.sim.scenarios import build
+from laser_tracker.tools.bag import iter_messages, read_odometry, topics
+from laser_tracker.tools.sim.recorder import record
+from laser_tracker.tools.sim.scenarios import build
 from laser_tracker.tools.import_bag import import_bag
 from laser_tracker.tools.simulate import write_recording
 

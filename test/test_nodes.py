@@ -13,7 +13,7 @@ BAG = ROOT / 'bags' / 'exp1_stationary_single_walker'
 
 
 def _bag_messages():
-    from laser_tracker.io.bag import iter_messages
+    from laser_tracker.tools.bag import iter_messages
     return list(iter_messages(BAG, ['/scan', '/odom']))
 
 
@@ -208,7 +208,7 @@ def test_pose_quality_round_trip_through_the_odometry_message():
     from laser_tracker.core.difference import (FAILED_VARIANCE, DifferenceConfig, PoseQuality,
                                                pose_trusted, quality_from_pose_variance,
                                                quality_to_pose_variance)
-    from laser_tracker.io.bag import TYPESTORE
+    from laser_tracker.tools.bag import TYPESTORE
 
     gate = DifferenceConfig()
     qualities = {PoseQuality((2.5e-5, 1.3e-4, 7.1e-6), 1.0 - 0.93): True,

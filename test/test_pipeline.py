@@ -14,7 +14,7 @@ from laser_tracker.config import ConfigError
 from laser_tracker.core.hypotheses import Tracker
 from laser_tracker.core.pipeline import Detector, Pipeline, PipelineConfig
 from laser_tracker.core.scan import Scan
-from laser_tracker.sim.world import World, cast
+from laser_tracker.tools.sim.world import World, cast
 
 DT = 0.2
 

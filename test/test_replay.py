@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from laser_tracker.cli import main
+from laser_tracker.tools.cli import main
 from laser_tracker.conversions import PlanarOdometry, header, odometry_to_msg, scan_to_msg
 from laser_tracker.core.scan import Scan
 from laser_tracker.errors import InputFileError
-from laser_tracker.io.bag import FACTORY, BagWriter
+from laser_tracker.tools.bag import FACTORY, BagWriter
 from laser_tracker.tools.replay import replay_bag
 
 REPO = Path(__file__).resolve().parents[1]

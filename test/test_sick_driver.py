@@ -14,7 +14,7 @@ from laser_tracker.sick import protocol as P
 from laser_tracker.sick.driver import (BaudDetectionError, CommandRejectedError, PortBusyError,
                                        PortNotFoundError, PortPermissionError, SickLmsConfig,
                                        SickLmsDriver, SickScan)
-from laser_tracker.sick.simulator import Corruption, Lms2xxSimulator
+from laser_tracker.tools.sick_device import Corruption, Lms2xxSimulator
 
 FAST = dict(reply_timeout=0.2, silence_timeout=0.3, reconnect_period=0.1)
 

@@ -18,7 +18,7 @@ from sensor_msgs.msg import LaserScan  # noqa: E402
 
 from laser_tracker.nodes.sick_lms_driver import DIAGNOSTIC_NAME, SickLmsDriverNode  # noqa: E402
 from laser_tracker.sick import protocol as P  # noqa: E402
-from laser_tracker.sick.simulator import Corruption, Lms2xxSimulator  # noqa: E402
+from laser_tracker.tools.sick_device import Corruption, Lms2xxSimulator  # noqa: E402
 
 FAST = {'reply_timeout': 0.2, 'silence_timeout': 0.3, 'reconnect_period': 0.1,
         'diagnostics_period': 0.2}

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from laser_tracker.sick import protocol as P
-from laser_tracker.sick.simulator import Lms2xxDevice, corrupt, Corruption
+from laser_tracker.tools.sick_device import Lms2xxDevice, corrupt, Corruption
 
 
 def h(text: str) -> bytes:

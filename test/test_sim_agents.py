@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from laser_tracker.sim.agents import GaitConfig, PathBuilder, Person, Robot
+from laser_tracker.tools.sim.agents import GaitConfig, PathBuilder, Person, Robot
 
 DT = 0.005
 

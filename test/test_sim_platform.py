@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from laser_tracker.core.geometry import interpolate_poses, wrap_angle
-from laser_tracker.sim.agents import PathBuilder
-from laser_tracker.sim.platform import OdometryConfig, simulate_odometry
+from laser_tracker.tools.sim.agents import PathBuilder
+from laser_tracker.tools.sim.platform import OdometryConfig, simulate_odometry
 
 QUIET = dict(scale_error=0.0, rotation_scale_error=0.0, heading_drift=0.0,
              translation_noise=0.0, rotation_noise=0.0, latency=0.0, latency_jitter=0.0)

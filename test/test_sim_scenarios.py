@@ -8,11 +8,11 @@ import pytest
 from rosbags.rosbag2 import Reader
 
 from laser_tracker.core.geometry import transform_points
-from laser_tracker.io.bag import TYPESTORE
-from laser_tracker.sim.agents import Person
-from laser_tracker.sim.recorder import record
-from laser_tracker.sim.scenarios import SCENARIOS, build
-from laser_tracker.sim.world import clearance
+from laser_tracker.tools.bag import TYPESTORE
+from laser_tracker.tools.sim.agents import Person
+from laser_tracker.tools.sim.recorder import record
+from laser_tracker.tools.sim.scenarios import SCENARIOS, build
+from laser_tracker.tools.sim.world import clearance
 from laser_tracker.tools.simulate import recording_messages
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -4,10 +4,10 @@ import math
 import numpy as np
 import pytest
 
-from laser_tracker.sim.agents import PathBuilder
-from laser_tracker.sim.lidar import MIRROR_HZ, Lidar, LidarConfig
-from laser_tracker.sim.recorder import Scenario, record
-from laser_tracker.sim.world import World, cast, clearance, ray_circle_distances
+from laser_tracker.tools.sim.agents import PathBuilder
+from laser_tracker.tools.sim.lidar import MIRROR_HZ, Lidar, LidarConfig
+from laser_tracker.tools.sim.recorder import Scenario, record
+from laser_tracker.tools.sim.world import World, cast, clearance, ray_circle_distances
 
 
 def _wall_scenario(duration=40.0, **lidar):

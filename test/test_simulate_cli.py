@@ -4,11 +4,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from laser_tracker.cli import main
-from laser_tracker.io.bag import (read_ground_truth, read_odometry, read_platform_truth,
+from laser_tracker.tools.cli import main
+from laser_tracker.tools.bag import (read_ground_truth, read_odometry, read_platform_truth,
                                   read_scans, topics)
-from laser_tracker.sim.recorder import record
-from laser_tracker.sim.scenarios import SCENARIOS, build
+from laser_tracker.tools.sim.recorder import record
+from laser_tracker.tools.sim.scenarios import SCENARIOS, build
 from laser_tracker.tools.simulate import write_recording
 
 

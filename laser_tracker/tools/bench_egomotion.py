@@ -47,7 +47,7 @@ import numpy as np
 from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimator
 from laser_tracker.core.geometry import between, compose
 from laser_tracker.core.scan import Scan
-from laser_tracker.io.carmen import read_carmen
+from laser_tracker.tools.carmen import read_carmen
 
 DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'carmen'
 DEFAULT_LOGS = ('intel-corrected.log.gz', 'aces-corrected.log.gz')

@@ -6,7 +6,7 @@ continuing stamps until ``--scans`` scans have been processed, single-threaded. 
 scans per second, milliseconds per stage (ego-motion, grid, difference, blobs, tracking),
 and peak traced memory (tracemalloc) for a short run and a long one (``--long-scans``,
 default a simulated hour at 5 Hz = 18,000 scans) with checkpoints, to show it stays flat.
-Without bundled recordings the scans come from the simulator (``laser_tracker.sim``), else
+Without bundled recordings the scans come from the simulator (``laser_tracker.tools.sim``), else
 from a synthetic room with a walker.
 """
 from __future__ import annotations
@@ -79,7 +79,7 @@ class Events:
 
 def load_bag(name: str) -> Events:
     from laser_tracker.conversions import odometry_from_msg, scan_from_msg
-    from laser_tracker.io.bag import iter_messages, topics
+    from laser_tracker.tools.bag import iter_messages, topics
     from laser_tracker.tools.demo import resolve_bag
 
     path = resolve_bag(name)
@@ -106,8 +106,8 @@ def _finish(name: str, events: list) -> Events:
 
 
 def load_sim(name: str) -> Events:
-    from laser_tracker.sim import scenarios
-    from laser_tracker.sim.recorder import record
+    from laser_tracker.tools.sim import scenarios
+    from laser_tracker.tools.sim.recorder import record
 
     rec = record(scenarios.build(name))
     events = [(t, 1, ('scan', s)) for s, t in zip(rec.scans, rec.scan_receive_times)]

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from laser_tracker.sick.driver import SickLmsConfig, SickLmsDriver, SickScan
-from laser_tracker.sick.simulator import Lms2xxSimulator
+from laser_tracker.tools.sick_device import Lms2xxSimulator
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 from laser_tracker import parameters
 from laser_tracker.config import ConfigError, read_ros_yaml, render_ros_yaml
 from laser_tracker.core.pipeline import PipelineConfig
-from laser_tracker.io.atomic import atomic_path
+from laser_tracker.tools.atomic import atomic_path
 
 HEADER = """\
 # laser_tracker parameters, every node (ROS 2 parameter file).

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from laser_tracker.errors import InputFileError, LaserTrackerError
-from laser_tracker.io.atomic import write_json
+from laser_tracker.tools.atomic import write_json
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ def resolve_bag(name: str | Path) -> Path:
 
 
 def has_ground_truth(bag: Path) -> bool:
-    from laser_tracker.io.bag import GROUND_TRUTH_TOPIC, PLATFORM_TRUTH_TOPIC, topics
+    from laser_tracker.tools.bag import GROUND_TRUTH_TOPIC, PLATFORM_TRUTH_TOPIC, topics
 
     found = topics(bag)
     return GROUND_TRUTH_TOPIC in found and PLATFORM_TRUTH_TOPIC in found

@@ -23,7 +23,7 @@ import numpy as np
 from laser_tracker.core.geometry import interpolate_poses
 from laser_tracker.core.head import HeadConfig, captured_objects, simulate_head
 from laser_tracker.errors import InputFileError, LaserTrackerError
-from laser_tracker.io.atomic import write_json
+from laser_tracker.tools.atomic import write_json
 from laser_tracker.tools.figures import pyplot, save_figure
 from laser_tracker.tools.scoring import (EvaluationConfig, Scores, TrackTable, TruthTable,
                                          match_stamps, median_period, score, score_unlabelled,
@@ -143,7 +143,7 @@ def hypotheses_made(replay: Replay) -> tuple[int, str]:
 
 def load_truth(bag: str | Path) -> tuple[TruthTable, np.ndarray, np.ndarray]:
     """Ground truth and platform truth of a recording; a clear error if it has none."""
-    from laser_tracker.io.bag import read_ground_truth, read_platform_truth
+    from laser_tracker.tools.bag import read_ground_truth, read_platform_truth
 
     try:
         frames = read_ground_truth(bag)

@@ -6,7 +6,7 @@
   the current frame, (c) difference map (changes white, no valid data grey), (d) the
   hypotheses' velocities over the scan (lines; confirmed ones marked with a cross).
 
-Every file is written atomically (``laser_tracker.io.atomic``).
+Every file is written atomically (``laser_tracker.tools.atomic``).
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from laser_tracker.core.grid import FREE, OCCUPIED, UNKNOWN
-from laser_tracker.io.atomic import atomic_path
+from laser_tracker.tools.atomic import atomic_path
 
 
 def pyplot():

@@ -25,7 +25,7 @@ from laser_tracker.conversions import (odometry_from_msg, odometry_to_msg, scan_
                                        scan_to_msg)
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError, LaserTrackerError
-from laser_tracker.io.bag import FACTORY, BagWriter, iter_messages, topics
+from laser_tracker.tools.bag import FACTORY, BagWriter, iter_messages, topics
 
 log = logging.getLogger(__name__)
 

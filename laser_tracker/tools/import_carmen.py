@@ -3,7 +3,7 @@
 Writes ``/scan`` (sensor_msgs/LaserScan, frame ``laser``) and ``/odom`` (nav_msgs/Odometry,
 ``odom`` -> ``base_link``), both stamped with the log's ipc time stamps.
 
-* Beam geometry and the no-return value: see :mod:`laser_tracker.io.carmen`. No-return
+* Beam geometry and the no-return value: see :mod:`laser_tracker.tools.carmen`. No-return
   readings are written as ``+inf`` (REP 117) and ``range_max`` is the log's maximum reading, so
   ``Scan.valid()`` and ``Scan.free_ranges()`` read them as "nothing seen up to range_max".
 * Odometry: the ODOM lines when the log has any (velocities tv, rv from the line), else the
@@ -22,8 +22,8 @@ import numpy as np
 
 from laser_tracker.conversions import PlanarOdometry, odometry_to_msg, scan_to_msg
 from laser_tracker.errors import InputFileError
-from laser_tracker.io.bag import FACTORY, ODOM_TOPIC, SCAN_TOPIC, BagWriter
-from laser_tracker.io.carmen import read_carmen
+from laser_tracker.tools.bag import FACTORY, ODOM_TOPIC, SCAN_TOPIC, BagWriter
+from laser_tracker.tools.carmen import read_carmen
 
 log = logging.getLogger(__name__)
 

@@ -37,7 +37,7 @@ from laser_tracker.core.sync import OdometryWait
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError
-from laser_tracker.io.atomic import atomic_path, write_json
+from laser_tracker.tools.atomic import atomic_path, write_json
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +96,7 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
     written (the summary is still returned). ``on_confirmed(stamp, track_id, x, y, vx, vy)``
     is called once per track, when it is first confirmed (odometry frame).
     """
-    from laser_tracker.io.bag import iter_messages, topics
+    from laser_tracker.tools.bag import iter_messages, topics
 
     bag_path = Path(bag_path)
     if isinstance(config, (str, Path)):

@@ -9,7 +9,7 @@ import argparse
 import time
 
 from laser_tracker.sick import protocol as P
-from laser_tracker.sick.simulator import (DEFAULT_LINK, DEFAULT_TYPE, Corruption,
+from laser_tracker.tools.sick_device import (DEFAULT_LINK, DEFAULT_TYPE, Corruption,
                                           Lms2xxSimulator, RecordingSource, ScenarioSource)
 
 
@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--topic', default='/scan', help='scan topic of --recording bags')
     parser.add_argument('--scenario', metavar='NAME',
                         help='take ranges from a scenario of the scenario simulator '
-                             '(laser_tracker.sim), e.g. exp1_stationary_single_walker')
+                             '(laser_tracker.tools.sim), e.g. exp1_stationary_single_walker')
     parser.add_argument('--fault-rate', type=float, default=0.0,
                         help='probability that a streamed telegram is corrupted')
     parser.add_argument('--faults', default='flip,drop,insert',

@@ -17,10 +17,10 @@ from pathlib import Path
 
 from laser_tracker.conversions import objects_to_marker_array, odometry_to_msg, scan_to_msg
 from laser_tracker.errors import LaserTrackerError
-from laser_tracker.io.bag import (FACTORY, GROUND_TRUTH_TOPIC, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC,
+from laser_tracker.tools.bag import (FACTORY, GROUND_TRUTH_TOPIC, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC,
                                   SCAN_TOPIC, BagWriter)
-from laser_tracker.sim.recorder import WORLD_FRAME, Recording, record
-from laser_tracker.sim.scenarios import SCENARIOS, build
+from laser_tracker.tools.sim.recorder import WORLD_FRAME, Recording, record
+from laser_tracker.tools.sim.scenarios import SCENARIOS, build
 
 GROUND_TRUTH_NS = 'ground_truth'
 

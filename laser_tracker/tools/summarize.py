@@ -16,7 +16,7 @@ import numpy as np
 
 from laser_tracker.conversions import (objects_from_marker_array, odometry_from_msg,
                                        stamp_to_sec)
-from laser_tracker.io.bag import GROUND_TRUTH_TOPIC, iter_messages, topics
+from laser_tracker.tools.bag import GROUND_TRUTH_TOPIC, iter_messages, topics
 
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 ODOM_TYPE = 'nav_msgs/msg/Odometry'

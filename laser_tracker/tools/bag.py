@@ -19,7 +19,7 @@ from laser_tracker.conversions import (MovingObject, bag_factory, objects_from_m
                                        odometry_from_msg, scan_from_msg, sec_to_ns)
 from laser_tracker.core.scan import Scan, ScanError
 from laser_tracker.errors import InputFileError
-from laser_tracker.io.atomic import atomic_path
+from laser_tracker.tools.atomic import atomic_path
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 FACTORY = bag_factory(TYPESTORE)

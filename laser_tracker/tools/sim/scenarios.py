@@ -15,11 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from laser_tracker.sim.agents import GaitConfig, PathBuilder, Person, Robot
-from laser_tracker.sim.lidar import LidarConfig
-from laser_tracker.sim.platform import OdometryConfig
-from laser_tracker.sim.recorder import Scenario
-from laser_tracker.sim.world import World
+from laser_tracker.tools.sim.agents import GaitConfig, PathBuilder, Person, Robot
+from laser_tracker.tools.sim.lidar import LidarConfig
+from laser_tracker.tools.sim.platform import OdometryConfig
+from laser_tracker.tools.sim.recorder import Scenario
+from laser_tracker.tools.sim.world import World
 
 DEG = math.pi / 180.0
 # The 55 s recordings carry odometry at 25 Hz instead of 50 Hz: an Odometry message is 724

@@ -28,7 +28,7 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core.geometry import wrap_angle
-from laser_tracker.sim.world import box_corners
+from laser_tracker.tools.sim.world import box_corners
 
 PERSON = 'person'
 ROBOT = 'robot'

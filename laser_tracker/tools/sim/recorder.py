@@ -17,10 +17,10 @@ import numpy as np
 
 from laser_tracker.conversions import MovingObject, PlanarOdometry
 from laser_tracker.core.scan import Scan
-from laser_tracker.sim.agents import Trajectory
-from laser_tracker.sim.lidar import Lidar, LidarConfig
-from laser_tracker.sim.platform import OdometryConfig, OdometryStream, simulate_odometry
-from laser_tracker.sim.world import World, cast
+from laser_tracker.tools.sim.agents import Trajectory
+from laser_tracker.tools.sim.lidar import Lidar, LidarConfig
+from laser_tracker.tools.sim.platform import OdometryConfig, OdometryStream, simulate_odometry
+from laser_tracker.tools.sim.world import World, cast
 
 WORLD_FRAME = 'map'
 

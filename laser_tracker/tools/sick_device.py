@@ -114,7 +114,7 @@ class RecordingSource:
             inc = math.pi / (rows.shape[1] - 1)
             self.scans = [(-math.pi / 2, inc, row) for row in rows]
         else:
-            from laser_tracker.io.bag import read_scans  # rosbags only when a bag is replayed
+            from laser_tracker.tools.bag import read_scans  # rosbags only when a bag is replayed
 
             for scan in read_scans(path, topic):
                 if isinstance(scan, Exception):
@@ -133,14 +133,14 @@ class RecordingSource:
 
 
 class ScenarioSource:
-    """Ranges from the scenario simulator (``laser_tracker.sim``): the scene of scenario
+    """Ranges from the scenario simulator (``laser_tracker.tools.sim``): the scene of scenario
     ``name`` cast from the platform's pose at the scan time (looped over the scenario's
     duration), through its sensor model (noise, dropouts, spurious returns). Its no-return
     reading (``range_max``) becomes the device's "value above maximum"."""
 
     def __init__(self, name: str, seed: int | None = None):
-        from laser_tracker.sim import scenarios
-        from laser_tracker.sim.lidar import Lidar
+        from laser_tracker.tools.sim import scenarios
+        from laser_tracker.tools.sim.lidar import Lidar
 
         if name not in scenarios.SCENARIOS:
             raise ValueError(f'unknown scenario {name!r}; known: {", ".join(scenarios.SCENARIOS)}')
@@ -149,7 +149,7 @@ class ScenarioSource:
         self._seed = self.scenario.seed
 
     def __call__(self, index: int, t: float, angles: np.ndarray) -> np.ndarray:
-        from laser_tracker.sim.world import cast
+        from laser_tracker.tools.sim.world import cast
 
         sc = self.scenario
         span = max(sc.duration - sc.scan_start, 1e-3)

@@ -1,6 +1,6 @@
 """The platform's true motion and the wheel odometry it reports, with realistic errors.
 
-The true pose is a :class:`~laser_tracker.sim.agents.Trajectory` in the world frame (``map``).
+The true pose is a :class:`~laser_tracker.tools.sim.agents.Trajectory` in the world frame (``map``).
 Odometry ticks at ``rate_hz``; each tick's true body-frame increment ``(dx, dy, dtheta)`` is
 corrupted as wheel odometry is:
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core.geometry import wrap_angle
-from laser_tracker.sim.agents import Trajectory
+from laser_tracker.tools.sim.agents import Trajectory
 
 
 @dataclass(frozen=True)
