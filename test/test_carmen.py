@@ -13,8 +13,9 @@ from laser_tracker.tools.cli import main
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools.bag import read_odometry, read_scans, topics
 from laser_tracker.tools.carmen import detect_max_reading, flaser_geometry, read_carmen
+from laser_tracker.tools.data import real_data
 
-DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'carmen'
+DATA = real_data() / 'carmen'
 
 
 def _real(name: str) -> Path:

@@ -17,8 +17,9 @@ from laser_tracker.core.geometry import between, compose
 from laser_tracker.core.icp import LocalMap, align, scan_normals
 from laser_tracker.core.scan import Scan
 from laser_tracker.tools.bag import PoseTrack
+from laser_tracker.tools.data import real_data
 
-DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'carmen'
+DATA = real_data() / 'carmen'
 DEG = math.pi / 180.0
 #: the tests below that inject 3-8 cm odometry errors tell the estimator its odometry is
 #: that noisy (the defaults assume 1 cm + 5 % per step, a good wheel odometry)

@@ -19,8 +19,9 @@ from laser_tracker.tools.sim.recorder import record
 from laser_tracker.tools.sim.scenarios import build
 from laser_tracker.tools.import_bag import import_bag
 from laser_tracker.tools.simulate import write_recording
+from laser_tracker.tools.data import real_data
 
-DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
+DATA = real_data()
 LEG_BAG = DATA / 'leg_tracker' / 'demo_stationary_simple_environment.bag'
 ROS1 = get_typestore(Stores.ROS1_NOETIC)
 

@@ -16,9 +16,10 @@ from laser_tracker.core.scan import Scan
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools.bag import FACTORY, BagWriter
 from laser_tracker.tools.replay import replay_bag
+from laser_tracker.tools.data import real_data
 
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / 'shared' / 'data'
+DATA = real_data()
 BUNDLED = REPO / 'bags' / 'exp1_stationary_single_walker'
 
 

@@ -3,8 +3,8 @@
 A telegram is ``STX(0x02) | ADDR | LEN (u16 LE) | CMD | DATA... | [STATUS] | CRC (u16 LE)``.
 ``ADDR`` is 0x00 from the host, 0x80 from the device; ``LEN`` counts CMD through STATUS
 (device replies end in a status byte, host telegrams have none). Before any reply the device
-sends one unframed byte, ACK 0x06 or NAK 0x15. The facts and the test vectors come from
-``/work/shared/sick-lms2xx-protocol.md`` (sicktoolbox, Player, RL, MRPT).
+sends one unframed byte, ACK 0x06 or NAK 0x15. The facts and the test vectors come from SICK's
+LMS2xx telegram listing as implemented by the open drivers (sicktoolbox, Player, RL, MRPT).
 
 Everything here is pure: encoders return bytes, decoders take bytes and return frozen
 dataclasses or raise a :class:`ProtocolError` subclass, and :class:`TelegramStreamParser`

@@ -48,8 +48,9 @@ from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimator
 from laser_tracker.core.geometry import between, compose
 from laser_tracker.core.scan import Scan
 from laser_tracker.tools.carmen import read_carmen
+from laser_tracker.tools.data import real_data
 
-DATA = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'carmen'
+DATA = real_data() / 'carmen'
 DEFAULT_LOGS = ('intel-corrected.log.gz', 'aces-corrected.log.gz')
 RAW_LOG = 'mit-csail.clf'
 NOISE = (0.05, 0.05, math.radians(2.0))
