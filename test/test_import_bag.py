@@ -3,7 +3,6 @@ pipeline uses; bad input gives a clear error and leaves nothing behind."""
 import dataclasses
 import logging
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
