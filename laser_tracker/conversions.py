@@ -60,12 +60,23 @@ def stamp_to_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
+def time_msg(factory: MessageFactory, ns: int):
+    """builtin_interfaces/Time of integer nanoseconds, exactly."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return factory.make('builtin_interfaces/msg/Time', sec=sec, nanosec=nanosec)
+
+
 def restamp(msg, stamp):
     """Set the exact header stamp (a Time message) on ``msg``, or on every marker of a
     MarkerArray, so outputs carry their input's stamp bit for bit. Returns ``msg``."""
     for item in getattr(msg, 'markers', None) or [msg]:
         item.header.stamp = stamp
     return msg
+
+
+def restamp_ns(factory: MessageFactory, msg, ns: int | None):
+    """:func:`restamp` with the exact stamp in integer nanoseconds (None: leave as is)."""
+    return msg if ns is None else restamp(msg, time_msg(factory, ns))
 
 
 # ----------------------------------------------------------------------------- orientation
@@ -90,6 +101,10 @@ class MessageFactory:
 
     def float32_array(self, values) -> Any:  # pragma: no cover - interface
         raise NotImplementedError
+
+    def byte(self, value: int) -> Any:
+        """A ``byte`` field's value (rclpy wants a 1-byte ``bytes``, rosbags an int)."""
+        return bytes([int(value)])
 
 
 class _RosFactory(MessageFactory):
@@ -152,6 +167,9 @@ class _BagFactory(MessageFactory):
     def float32_array(self, values):
         return np.ascontiguousarray(values, dtype=np.float32)
 
+    def byte(self, value: int) -> Any:
+        return int(value)
+
 
 def _numpy_dtype(base: str):
     """numpy dtype of a ROS primitive array element (byte, char and octet are uint8)."""
@@ -199,7 +217,7 @@ def scan_from_msg(msg) -> Scan:
                 angle_min=float(msg.angle_min), angle_increment=inc,
                 range_min=float(msg.range_min), range_max=float(msg.range_max),
                 time_increment=float(msg.time_increment), scan_time=float(msg.scan_time),
-                frame_id=str(msg.header.frame_id))
+                frame_id=str(msg.header.frame_id), stamp_ns=stamp_to_ns(msg.header.stamp))
 
 
 def scan_to_msg(factory: MessageFactory, scan: Scan, intensities=None):
@@ -251,26 +269,35 @@ def odometry_from_msg(msg) -> PlanarOdometry:
                           child_frame_id=str(msg.child_frame_id))
 
 
-def _covariance(factory: MessageFactory, diag6) -> Any:
-    cov = np.zeros(36)
-    if diag6 is not None:
-        cov[::7] = diag6
-    return cov if isinstance(factory, _BagFactory) else cov.tolist()
+def _covariance(factory: MessageFactory, cov) -> Any:
+    """A 6 x 6 covariance (x, y, z, roll, pitch, yaw) as the message wants it, from the 6
+    diagonal terms, a planar 3 x 3 (x, y, yaw) covariance, or None (zeros)."""
+    out = np.zeros((6, 6))
+    if cov is not None:
+        cov = np.asarray(cov, dtype=float)
+        if cov.shape == (3, 3):
+            idx = np.array([0, 1, 5])
+            out[np.ix_(idx, idx)] = cov
+        else:
+            out[np.diag_indices(6)] = cov.reshape(6)
+    flat = out.reshape(36)
+    return flat if isinstance(factory, _BagFactory) else flat.tolist()
 
 
-def pose_variance_from_msg(msg) -> np.ndarray:
-    """nav_msgs/Odometry (or geometry_msgs/PoseWithCovarianceStamped) -> the 6 diagonal
-    terms of its pose covariance (x, y, z, roll, pitch, yaw), as ``odometry_to_msg`` takes
-    them; ValueError when the covariance is not 36 numbers."""
-    cov = np.asarray(msg.pose.covariance, dtype=float).ravel()
+def planar_covariance(cov36) -> np.ndarray:
+    """The x, y, yaw block (3 x 3) of a 6 x 6 message covariance; ValueError if it is not 36
+    numbers."""
+    cov = np.asarray(cov36, dtype=float).ravel()
     if cov.size != 36:
-        raise ValueError(f'pose covariance has {cov.size} terms, not 36')
-    return cov[::7].copy()
+        raise ValueError(f'covariance has {cov.size} terms, not 36')
+    idx = np.array([0, 1, 5])
+    return cov.reshape(6, 6)[np.ix_(idx, idx)].copy()
 
 
 def odometry_to_msg(factory: MessageFactory, odom: PlanarOdometry, pose_variance=None,
                     twist_variance=None):
-    """PlanarOdometry -> nav_msgs/Odometry; variances are the 6 diagonal terms (or None)."""
+    """PlanarOdometry -> nav_msgs/Odometry; covariances as 6 diagonal terms, a planar 3 x 3
+    (x, y, yaw) matrix, or None."""
     f = factory
     pose = f.make('geometry_msgs/msg/Pose',
                   position=f.make('geometry_msgs/msg/Point', x=float(odom.x), y=float(odom.y),
@@ -289,6 +316,151 @@ def odometry_to_msg(factory: MessageFactory, odom: PlanarOdometry, pose_variance
                               covariance=_covariance(f, pose_variance)),
                   twist=f.make('geometry_msgs/msg/TwistWithCovariance', twist=twist,
                                covariance=_covariance(f, twist_variance)))
+
+
+# ------------------------------------------------------------------------------ ego-motion
+
+#: Name of the one DiagnosticStatus in each ``ego_motion/status`` message.
+EGO_STATUS_NAME = 'ego_motion'
+
+
+def ego_motion_to_msgs(factory: MessageFactory, pose):
+    """``core.stages.StampedPose`` -> (nav_msgs/Odometry, diagnostic_msgs/DiagnosticArray).
+
+    The Odometry means what Odometry means everywhere: the scanner pose in the odometry frame
+    (child frame = the scan's frame) with its covariance (accumulated since the pose chain
+    started), and the twist (the motion since the previous scan over its duration, in the
+    scanner frame) with its covariance. The DiagnosticArray (``ego_motion/status``, same
+    stamp) carries what the detection gate reads: ``source`` (icp, icp_partial, odometry,
+    motion_model, init), ``motion_variance`` (x, y, yaw variances of that motion; 1e6 each
+    when the scan match was refused), ``unmatched`` (fraction of the scan's points the match
+    left unexplained), ``restarted`` (the pose chain restarted here: odometry-frame history is
+    void), ``trusted`` (for people reading it: whether the default gate trusts it) and
+    ``reason``.
+    """
+    from laser_tracker.core.difference import DifferenceConfig, pose_trusted
+
+    x, y, theta = (float(v) for v in pose.pose)
+    dt = float(pose.dt)
+    motion = np.asarray(pose.motion, dtype=float)
+    twist = np.zeros(3)
+    twist_cov = None
+    if dt > 0 and np.isfinite(motion).all():
+        c, s_ = math.cos(motion[2]), math.sin(motion[2])
+        twist = np.array([c * motion[0] + s_ * motion[1], -s_ * motion[0] + c * motion[1],
+                          motion[2]]) / dt
+        mc = np.asarray(pose.motion_covariance, dtype=float)
+        twist_cov = mc / (dt * dt) if np.isfinite(mc).all() else None
+    odom = PlanarOdometry(stamp=pose.stamp, x=x, y=y, theta=theta, vx=float(twist[0]),
+                          vy=float(twist[1]), omega=float(twist[2]), frame_id=pose.frame_id,
+                          child_frame_id=pose.child_frame_id)
+    odometry = odometry_to_msg(factory, odom, pose.pose_covariance, twist_cov)
+    q = pose.quality
+    trusted = pose_trusted(q, DifferenceConfig())
+    values = {'source': pose.source,
+              'motion_variance': ' '.join(repr(float(v)) for v in q.variance),
+              'unmatched': repr(float(q.unmatched)),
+              'restarted': 'true' if q.restarted else 'false',
+              'trusted': 'true' if trusted else 'false',
+              'reason': str(pose.reason)[:200]}
+    f = factory
+    status = f.make('diagnostic_msgs/msg/DiagnosticStatus', level=f.byte(0 if trusted else 1),
+                    name=EGO_STATUS_NAME, message=f'{pose.source}: {pose.reason}'[:200],
+                    hardware_id='',
+                    values=[f.make('diagnostic_msgs/msg/KeyValue', key=k, value=v)
+                            for k, v in values.items()])
+    array = f.make('diagnostic_msgs/msg/DiagnosticArray',
+                   header=header(f, pose.stamp, pose.frame_id), status=[status])
+    stamp_ns = pose.stamp_ns
+    return restamp_ns(f, odometry, stamp_ns), restamp_ns(f, array, stamp_ns)
+
+
+def ego_motion_from_msgs(odometry_msg, status_msg=None):
+    """Inverse of :func:`ego_motion_to_msgs` (``status_msg`` None: a pose from another
+    publisher, trusted, not restarted). ValueError for a message that cannot be read."""
+    from laser_tracker.core.difference import FAILED_VARIANCE, PoseQuality
+    from laser_tracker.core.stages import StampedPose
+
+    odo = odometry_from_msg(odometry_msg)
+    pose = odo.pose
+    if not (np.isfinite(pose).all() and math.isfinite(odo.stamp)):
+        raise ValueError('ego-motion pose is not finite')
+    pose_cov = planar_covariance(odometry_msg.pose.covariance)
+    quality, source, reason = PoseQuality(), '', ''
+    if status_msg is not None:
+        status = next((st for st in status_msg.status if st.name == EGO_STATUS_NAME), None)
+        if status is None:
+            raise ValueError(f'ego-motion status has no {EGO_STATUS_NAME!r} entry')
+        values = {kv.key: kv.value for kv in status.values}
+        try:
+            variance = tuple(float(v) for v in values['motion_variance'].split())
+            unmatched = float(values['unmatched'])
+            restarted = values['restarted'] == 'true'
+        except (KeyError, ValueError) as exc:
+            raise ValueError(f'ego-motion status unreadable: {exc}') from None
+        if len(variance) != 3:
+            raise ValueError('ego-motion status: motion_variance needs 3 numbers')
+        variance = tuple(v if (math.isfinite(v) and v >= 0.0) else FAILED_VARIANCE
+                         for v in variance)
+        unmatched = unmatched if 0.0 <= unmatched <= 1.0 else 1.0
+        quality = PoseQuality(variance, unmatched, restarted)
+        source, reason = values.get('source', ''), values.get('reason', '')
+    return StampedPose(stamp=odo.stamp, pose=pose, motion=np.zeros(3),
+                       motion_covariance=np.zeros((3, 3)), pose_covariance=pose_cov,
+                       quality=quality, source=source, reason=reason,
+                       frame_id=odo.frame_id or 'odom', child_frame_id=odo.child_frame_id,
+                       stamp_ns=stamp_to_ns(odometry_msg.header.stamp))
+
+
+# ------------------------------------------------------------------------------- transforms
+
+
+@dataclass
+class PlanarTransform:
+    """The planar part of a geometry_msgs/TransformStamped: ``child`` in ``parent``."""
+
+    stamp: float
+    parent: str
+    child: str
+    x: float
+    y: float
+    yaw: float
+
+
+def transforms_from_msg(msg) -> list[PlanarTransform]:
+    """tf2_msgs/TFMessage (ROS 1 or 2) -> its transforms, planar part; frame names without a
+    leading slash (ROS 1 style ``/base_link`` is ``base_link``)."""
+    out = []
+    for t in msg.transforms:
+        tr = t.transform
+        out.append(PlanarTransform(stamp=stamp_to_sec(t.header.stamp),
+                                   parent=str(t.header.frame_id).lstrip('/'),
+                                   child=str(t.child_frame_id).lstrip('/'),
+                                   x=float(tr.translation.x), y=float(tr.translation.y),
+                                   yaw=yaw_from_quaternion(tr.rotation)))
+    return out
+
+
+def tf_message_to_msg(factory: MessageFactory, msg):
+    """A tf2_msgs/TFMessage (e.g. read from a ROS 1 bag) rebuilt with ``factory``'s types,
+    everything kept (3D translation and rotation, stamps, frame names)."""
+    f = factory
+    transforms = []
+    for t in msg.transforms:
+        tr, rot = t.transform.translation, t.transform.rotation
+        transforms.append(f.make(
+            'geometry_msgs/msg/TransformStamped',
+            header=f.make('std_msgs/msg/Header', frame_id=str(t.header.frame_id),
+                          stamp=f.make('builtin_interfaces/msg/Time', sec=int(t.header.stamp.sec),
+                                       nanosec=int(t.header.stamp.nanosec))),
+            child_frame_id=str(t.child_frame_id),
+            transform=f.make('geometry_msgs/msg/Transform',
+                             translation=f.make('geometry_msgs/msg/Vector3', x=float(tr.x),
+                                                y=float(tr.y), z=float(tr.z)),
+                             rotation=f.make('geometry_msgs/msg/Quaternion', x=float(rot.x),
+                                             y=float(rot.y), z=float(rot.z),
+                                             w=float(rot.w)))))
+    return f.make('tf2_msgs/msg/TFMessage', transforms=transforms)
 
 
 # ------------------------------------------------------------------------ moving objects
@@ -359,10 +531,22 @@ def objects_from_marker_array(msg, ns: str | None = None) -> tuple[float, str, l
             extra = json.loads(marker.text) if marker.text else {}
         except json.JSONDecodeError:
             extra = {'text': marker.text}
+        if not isinstance(extra, dict):
+            extra = {'text': marker.text}
         objects.append(MovingObject(id=int(marker.id), x=float(marker.pose.position.x),
                                     y=float(marker.pose.position.y), vx=float(vx),
                                     vy=float(vy), extra=extra))
     return stamp, frame_id, objects
+
+
+def number(extra: dict, key: str, default: float = 0.0) -> float:
+    """A finite number from a decoded JSON ``extra`` (``default`` when absent); ValueError
+    naming the key when it is there but not a finite number (another publisher's marker)."""
+    value = extra.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value):
+        raise ValueError(f'{key} is not a finite number: {value!r}')
+    return float(value)
 
 
 # ---------------------------------------------------------------------------- active head
@@ -442,6 +626,7 @@ def blobs_from_marker_array(msg):
     from laser_tracker.core.blobs import Blobs
 
     rows, origin, stamp, frame_id, restarted = [], None, math.nan, 'odom', False
+    stamp_ns = None
     for m in msg.markers:
         if m.action != MARKER_ADD:
             continue
@@ -449,6 +634,7 @@ def blobs_from_marker_array(msg):
             p = m.pose
             origin = (p.position.x, p.position.y, yaw_from_quaternion(p.orientation))
             stamp, frame_id = stamp_to_sec(m.header.stamp), str(m.header.frame_id)
+            stamp_ns = stamp_to_ns(m.header.stamp)
             try:
                 restarted = bool(json.loads(m.text).get('restarted', False)) if m.text else False
             except (json.JSONDecodeError, AttributeError):
@@ -466,21 +652,28 @@ def blobs_from_marker_array(msg):
     arr = np.array(rows, dtype=float).reshape(-1, 5)
     return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
                  cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
-                 structure=arr[:, 4].copy(), frame_id=frame_id, restarted=restarted)
+                 structure=arr[:, 4].copy(), frame_id=frame_id, restarted=restarted,
+                 stamp_ns=stamp_ns)
 
 
 # ----------------------------------------------------------------------------------- tracks
 
 
-def hypotheses_to_objects(hypotheses, confirmed_only: bool = True) -> list[MovingObject]:
-    """``core.hypotheses.HypothesisArrays`` -> MovingObjects for the ``tracks`` schema."""
-    keep = hypotheses.confirmed if confirmed_only else np.ones(len(hypotheses.weight), bool)
-    ids, pos, vel = hypotheses.track_id[keep], hypotheses.position[keep], \
-        hypotheses.velocity[keep]
-    weight, samples, confirmed = hypotheses.weight[keep], hypotheses.samples[keep], \
-        hypotheses.confirmed[keep]
-    return [MovingObject(int(ids[i]), float(pos[i, 0]), float(pos[i, 1]), float(vel[i, 0]),
-                         float(vel[i, 1]), {'weight': round(float(weight[i]), 2),
-                                            'confirmed': bool(confirmed[i]),
-                                            'samples': int(samples[i])})
-            for i in range(ids.size)]
+def tracks_to_objects(tracks, confirmed_only: bool = True) -> list[MovingObject]:
+    """``core.hypotheses.Tracks`` -> MovingObjects for the ``tracks`` schema: ``extra`` =
+    ``weight``, ``confirmed``, ``samples``, ``kind`` (``person`` / ``object``), ``moving``,
+    ``covariance`` ([xx, xy, yy] of the position, m^2)."""
+    rows = np.flatnonzero(tracks.confirmed) if confirmed_only else np.arange(len(tracks))
+    out = []
+    for i in rows:
+        c = tracks.covariance[i]
+        out.append(MovingObject(
+            int(tracks.track_id[i]), float(tracks.position[i, 0]),
+            float(tracks.position[i, 1]), float(tracks.velocity[i, 0]),
+            float(tracks.velocity[i, 1]),
+            {'weight': round(float(tracks.weight[i]), 2),
+             'confirmed': bool(tracks.confirmed[i]), 'samples': int(tracks.samples[i]),
+             'kind': str(tracks.kind[i]), 'moving': bool(tracks.moving[i]),
+             'covariance': [round(float(c[0, 0]), 6), round(float(c[0, 1]), 6),
+                            round(float(c[1, 1]), 6)]}))
+    return out

@@ -1,20 +1,42 @@
-"""Every node's parameters, declared once: node name -> {section prefix: dataclass}.
+"""Every node's parameters, declared once, and the one loader that reads them.
 
-The algorithm sections come from ``core.pipeline.NODES``; the node shells add their own
-plain-named sections (prefix ''). ``config/laser_tracker.yaml`` is :func:`defaults` rendered
-(``laser-tracker config --write``); :func:`load` validates a parameter file for every node.
+``NODE_SECTIONS``: node name -> {section prefix: dataclass}; the algorithm sections come from
+``core.pipeline.NODES``, the node shells add their own plain-named section (prefix '').
+``config/laser_tracker.yaml`` is :func:`defaults` rendered (``laser-tracker config --write``).
+
+:func:`load` is the single configuration path: the nodes at start-up (with the parameter
+files and ``-p`` overrides rclpy was given), ``laser-tracker replay --config`` and
+``laser-tracker config --check`` all call it, so they accept and refuse the same things:
+
+* entries are matched to nodes by ROS 2's rules (``tracking``, ``/tracking``,
+  ``/robot1/tracking``, ``/**/tracking``, ``/**``; see ``config.ParameterEntry.matches``);
+  offline, with no namespace given, the namespace part of a key matches any namespace;
+* an entry that configures none of our nodes, or a parameter that no node it configures
+  has, is an error; ``use_sim_time`` (built into every ROS node) is accepted everywhere;
+* values are checked by ``config.check_value`` (an integer is a fine float; ranges; choices);
+* every error is one line: ``FILE: node NODE: parameter NAME: problem``.
+
 Pure Python (no rclpy), so offline tools and tests use it too.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-from laser_tracker.config import ConfigError, from_dict, param, to_dict
+from laser_tracker.config import (ConfigError, ParameterEntry, check_value, describe,
+                                  from_dict, param, read_parameter_file, to_dict)
 from laser_tracker.core.head import HeadConfig
 from laser_tracker.core.pipeline import NODES as PIPELINE_NODES
 from laser_tracker.core.pipeline import PipelineConfig
 from laser_tracker.sick.config import SickLmsConfig
+
+#: Parameters that every ROS node has (rclpy declares them itself): accepted for every node.
+ROS_BUILTIN: dict[str, Any] = {'use_sim_time': False}
+#: Parameter name prefixes that ROS itself interprets (QoS overrides of publishers).
+ROS_BUILTIN_PREFIXES = ('qos_overrides.',)
+COMMAND_LINE = 'command line'
 
 
 @dataclass(frozen=True)
@@ -22,8 +44,18 @@ class EgoMotionNodeConfig:
     odom_frame: str = param('odom', 'Frame of the published poses (the odometry frame).')
     odom_wait: float = param(
         1.0, 'A scan waits up to this long (s) for odometry stamped at or after it, so the '
-        'odometry prior is interpolated, not extrapolated (0: never wait).', min=0.0,
-        max=10.0)
+        'odometry prior is interpolated, not extrapolated (0: never wait). When odometry '
+        'stops this is paid once; scans then flow on the motion model until it returns.',
+        min=0.0, max=10.0)
+
+
+@dataclass(frozen=True)
+class DetectionNodeConfig:
+    status_topic: str = param(
+        'ego_motion/status', 'Topic of the ego-motion status (diagnostic_msgs/'
+        'DiagnosticArray, one per pose) that tells detection whether each pose can be '
+        "trusted; '' = trust every pose (another localisation publishes ego_motion).",
+        read_only='subscriptions are made at start-up')
 
 
 @dataclass(frozen=True)
@@ -41,11 +73,14 @@ def _node_sections() -> dict[str, dict[str, type]]:
     for node, sections in PIPELINE_NODES.items():
         nodes[node] = {s: pipeline[s] for s in sections}
     nodes['ego_motion'] = {'': EgoMotionNodeConfig, **nodes['ego_motion']}
+    nodes['detection'] = {'': DetectionNodeConfig, **nodes['detection']}
     nodes['active_head'] = {'': ActiveHeadNodeConfig, 'head': HeadConfig}
     return nodes
 
 
 NODE_SECTIONS = _node_sections()
+#: The nodes whose parameters shape what offline replay computes.
+REPLAY_NODES = ('ego_motion', 'detection', 'tracking')
 
 
 #: The paper's method alone (the reference mode): every measured addition that is not in the
@@ -83,23 +118,151 @@ def defaults(paper: bool = False) -> dict[str, dict[str, Any]]:
     return out
 
 
-def load(nodes: dict[str, dict[str, Any]], source: str = '') -> dict[str, dict[str, Any]]:
-    """Validate ``{node: {dotted: value}}`` (``config.read_ros_yaml``) for our nodes.
+def field_of(node: str, name: str):
+    """``(prefix, dataclasses.Field)`` of parameter ``name`` of ``node``, or None."""
+    sections = NODE_SECTIONS[node]
+    prefix, _, key = name.rpartition('.')
+    cls = sections.get(prefix)
+    if cls is None:
+        return None
+    return next(((prefix, f) for n, f in describe(cls) if n == key), None)
 
-    Returns ``{node: {prefix: section instance}}``; nodes that are not ours are ignored
-    (the file may configure other packages). ConfigError names the first problem.
-    """
+
+def is_builtin(name: str) -> bool:
+    return name in ROS_BUILTIN or name.startswith(ROS_BUILTIN_PREFIXES)
+
+
+def check_parameter(node: str, name: str, value: Any, source: str = '') -> Any:
+    """One value of one node, validated as everywhere; returns it coerced. ConfigError
+    ``SOURCE: node NODE: parameter NAME: problem``."""
     where = f'{source}: ' if source else ''
-    out: dict[str, dict[str, Any]] = {}
-    for node, sections in NODE_SECTIONS.items():
-        values: dict[str, dict[str, Any]] = {prefix: {} for prefix in sections}
-        for name, value in (nodes.get(node) or {}).items():
-            prefix, _, key = name.rpartition('.')
-            if prefix not in sections:
-                raise ConfigError(f'{where}node {node}: unknown parameter {name!r}')
-            values[prefix][key] = value
-        try:
-            out[node] = {p: from_dict(sections[p], v, p) for p, v in values.items()}
-        except ConfigError as exc:
-            raise ConfigError(f'{where}node {node}: {exc}') from None
+    if is_builtin(name):
+        if name in ROS_BUILTIN and not isinstance(value, type(ROS_BUILTIN[name])):
+            raise ConfigError(f'{where}node {node}: parameter {name}: expected '
+                              f'{type(ROS_BUILTIN[name]).__name__}, got {value!r}')
+        return value
+    found = field_of(node, name)
+    if found is None:
+        raise ConfigError(f'{where}node {node}: unknown parameter {name!r} (the node\'s '
+                          f'parameters: `laser-tracker config --write -`)')
+    prefix, field = found
+    try:
+        return check_value(prefix, field, value)
+    except ConfigError as exc:
+        raise ConfigError(f'{where}node {node}: parameter {exc}') from None
+
+
+@dataclass
+class NodeParameters:
+    """The validated parameters of one node: its sections and where each value came from."""
+
+    node: str
+    sections: dict[str, Any]           # prefix -> section dataclass instance
+    sources: dict[str, str]            # dotted name -> file (or 'command line') that set it
+    builtin: dict[str, Any]            # use_sim_time, qos_overrides.* as given
+
+    def values(self) -> dict[str, Any]:
+        """``{dotted name: value}`` of every parameter (defaults included)."""
+        out = {}
+        for prefix, section in self.sections.items():
+            for key, value in to_dict(section).items():
+                out[f'{prefix}.{key}' if prefix else key] = value
+        return out
+
+
+def read_files(paths: Iterable[str | Path]) -> list[ParameterEntry]:
+    entries: list[ParameterEntry] = []
+    for path in paths:
+        entries.extend(read_parameter_file(path))
+    return entries
+
+
+def load(entries: Iterable[ParameterEntry] = (), overrides: Mapping[str, Any] | None = None,
+         nodes: Iterable[str] | None = None, namespace: str | None = None,
+         strict_entries: bool = True) -> dict[str, NodeParameters]:
+    """Validate parameter-file entries (and ``-p`` style ``overrides``, applied to every node
+    that has them) for ``nodes`` (default: all of ours) in ``namespace`` (None: any).
+
+    Later entries override earlier ones, overrides override entries. With
+    ``strict_entries``, an entry that configures none of our nodes (in any namespace) is an
+    error, and so is a parameter that none of the nodes its entry configures has, or a bad
+    value. ConfigError names the first problem in one line.
+    """
+    entries = list(entries)
+    wanted = list(nodes) if nodes is not None else list(NODE_SECTIONS)
+    if strict_entries:
+        _check_entries(entries)
+    out: dict[str, NodeParameters] = {}
+    for node in wanted:
+        raw: dict[str, tuple[Any, str]] = {}
+        for entry in entries:
+            if not entry.matches(node, namespace):
+                continue
+            wildcard = '*' in entry.key
+            for name, value in entry.params.items():
+                if wildcard and field_of(node, name) is None and not is_builtin(name):
+                    continue     # a wildcard entry may carry parameters of other nodes
+                raw[name] = (value, entry.source)
+        for name, value in (overrides or {}).items():
+            if field_of(node, name) is not None or is_builtin(name):
+                raw[name] = (value, COMMAND_LINE)
+        out[node] = _validate(node, raw)
     return out
+
+
+def _check_entries(entries: list[ParameterEntry]) -> None:
+    """Every entry configures one of our nodes (in some namespace) and every parameter of it
+    belongs to a node it configures, with a valid value."""
+    for entry in entries:
+        matched = [n for n in NODE_SECTIONS if entry.matches(n, None)]
+        if not matched:
+            raise ConfigError(f'{entry.source}: {entry.key!r} configures none of the nodes '
+                              f'{", ".join(NODE_SECTIONS)}')
+        for name, value in entry.params.items():
+            owners = [n for n in matched if is_builtin(name) or field_of(n, name)]
+            if not owners:
+                node = matched[0] if len(matched) == 1 else entry.key
+                raise ConfigError(f'{entry.source}: node {node}: unknown parameter {name!r} '
+                                  f"(the nodes' parameters: `laser-tracker config --write -`)")
+            for node in owners:
+                check_parameter(node, name, value, entry.source)
+
+
+def _validate(node: str, raw: dict[str, tuple[Any, str]]) -> NodeParameters:
+    sections_cls = NODE_SECTIONS[node]
+    values: dict[str, dict[str, Any]] = {prefix: {} for prefix in sections_cls}
+    sources: dict[str, str] = {}
+    builtin: dict[str, Any] = {}
+    for name, (value, source) in raw.items():
+        checked = check_parameter(node, name, value, source)
+        sources[name] = source
+        if is_builtin(name):
+            builtin[name] = checked
+            continue
+        prefix, _, key = name.rpartition('.')
+        values[prefix][key] = checked
+    sections = {}
+    for prefix, cls in sections_cls.items():
+        try:
+            sections[prefix] = from_dict(cls, values[prefix], prefix)
+        except ConfigError as exc:   # a rule across fields (e.g. scan angle and resolution)
+            source = next((sources[n] for n in sources
+                           if n.startswith(prefix)), '') if values[prefix] else ''
+            raise ConfigError((f'{source}: ' if source else '') + f'node {node}: {exc}') \
+                from None
+    return NodeParameters(node, sections, sources, builtin)
+
+
+def load_files(paths: Iterable[str | Path], nodes: Iterable[str] | None = None,
+               namespace: str | None = None) -> dict[str, NodeParameters]:
+    """:func:`load` of parameter files (in order; later files override earlier ones)."""
+    return load(read_files(paths), nodes=nodes, namespace=namespace)
+
+
+def pipeline_config(params: Mapping[str, NodeParameters]) -> PipelineConfig:
+    """The PipelineConfig of loaded node parameters (sections of the replay nodes)."""
+    sections = {}
+    for node in PIPELINE_NODES:
+        if node in params:
+            sections.update({p: s for p, s in params[node].sections.items() if p})
+    return PipelineConfig(**sections)

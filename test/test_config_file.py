@@ -7,7 +7,7 @@ from pathlib import Path
 import yaml
 
 from laser_tracker.tools.cli import main
-from laser_tracker.config import read_ros_yaml
+from laser_tracker.config import read_parameter_file
 from laser_tracker.core.pipeline import NODES, PipelineConfig
 from laser_tracker.parameters import NODE_SECTIONS
 from laser_tracker.tools.config_file import check, render_defaults
@@ -48,8 +48,8 @@ def test_rendering_is_a_ros_parameter_file_that_loads_back_to_the_defaults(tmp_p
     path.write_text(text)
     assert PipelineConfig.load(path) == PipelineConfig()
     assert check(path) == PipelineConfig()
-    flat = read_ros_yaml(path)
-    assert flat['tracking']['hypotheses.w_inc'] == 60.0
+    entries = {e.key: e.params for e in read_parameter_file(path)}
+    assert entries['tracking']['hypotheses.w_inc'] == 60.0
 
 
 def test_write_and_check_on_the_command_line(tmp_path, capsys):
@@ -81,7 +81,7 @@ def test_check_refuses_bad_files_with_the_reason(tmp_path, capsys):
     empty = tmp_path / 'other.yaml'
     empty.write_text('someone_else:\n  ros__parameters:\n    x: 1\n')
     assert main(['config', '--check', str(empty)]) == 2
-    assert 'none of the nodes' in capsys.readouterr().err
+    assert 'configures none of the nodes' in capsys.readouterr().err
     assert main(['config', '--check', str(tmp_path / 'missing.yaml')]) == 2
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from laser_tracker.errors import InputFileError
+from laser_tracker.tools import bag as bag_io
 from laser_tracker.tools import demo
 
 REPO = Path(__file__).resolve().parents[1]
@@ -17,19 +18,19 @@ REPO = Path(__file__).resolve().parents[1]
 def test_resolve_bag_finds_a_bundled_name_in_the_bag_folders(tmp_path, monkeypatch):
     share = tmp_path / 'share' / 'laser_tracker' / 'bags'
     (share / 'exp9_example').mkdir(parents=True)
-    monkeypatch.setattr(demo, 'bag_folders', lambda: [tmp_path / 'nothing', share])
-    assert demo.resolve_bag('exp9_example') == share / 'exp9_example'
-    assert demo.resolve_bag('bags/exp9_example') == share / 'exp9_example'
+    monkeypatch.setattr(bag_io, 'bag_folders', lambda: [tmp_path / 'nothing', share])
+    assert bag_io.resolve_bag('exp9_example') == share / 'exp9_example'
+    assert bag_io.resolve_bag('bags/exp9_example') == share / 'exp9_example'
     existing = tmp_path / 'mine'
     existing.mkdir()
-    assert demo.resolve_bag(existing) == existing  # a path that exists is used as given
+    assert bag_io.resolve_bag(existing) == existing  # a path that exists is used as given
     with pytest.raises(InputFileError, match='exp9_example') as info:
-        demo.resolve_bag('no_such_recording')
+        bag_io.resolve_bag('no_such_recording')
     assert 'no_such_recording' in str(info.value)
 
 
 def test_bag_folders_include_the_source_tree():
-    assert REPO / 'bags' in demo.bag_folders()
+    assert REPO / 'bags' in bag_io.bag_folders()
 
 
 def test_demo_on_an_unknown_recording_is_a_clear_error(capsys):
@@ -61,7 +62,7 @@ def test_demo_end_to_end_on_a_small_bundled_bag(tmp_path, capsys):
                      if r['confirmed'].strip().lower() in ('1', 'true', '1.0')}
     assert shown == confirmed
     result = json.loads((out / 'evaluation.json').read_text())
-    if demo.has_ground_truth(bag):
+    if bag_io.has_ground_truth(bag):
         assert result['mode'] == 'ground_truth' and 'MOTA' in printed
         assert result['frames'] > 0
     else:

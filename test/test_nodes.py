@@ -184,46 +184,62 @@ def test_bad_scans_are_skipped_and_tracking_continues(ros_context):
 
 
 def test_out_of_range_parameter_is_refused_with_its_name(ros_context):
-    from rclpy.exceptions import InvalidParameterValueException
     from rclpy.parameter import Parameter
 
+    from laser_tracker.config import ConfigError
     from laser_tracker.nodes.tracking import TrackingNode
 
-    with pytest.raises(InvalidParameterValueException, match='hypotheses.w_inc'):
+    with pytest.raises(ConfigError, match='node tracking: parameter hypotheses.w_inc: -5.0 '
+                                          'is below the minimum'):
         TrackingNode(context=ros_context,
                      parameter_overrides=[Parameter('hypotheses.w_inc', value=-5.0)])
-    node = TrackingNode(context=ros_context,
-                        parameter_overrides=[Parameter('hypotheses.w_inc', value=40.0)])
+    with pytest.raises(ConfigError, match="unknown parameter 'hypotheses.w_extra'"):
+        TrackingNode(context=ros_context,
+                     parameter_overrides=[Parameter('hypotheses.w_extra', value=1.0)])
+    node = TrackingNode(context=ros_context,          # an integer is a fine float
+                        parameter_overrides=[Parameter('hypotheses.w_inc', value=40)])
     try:
-        assert node.tracker.config.w_inc == 40.0
+        assert node.stage.config.w_inc == 40.0
+        assert isinstance(node.stage.config.w_inc, float)
     finally:
         node.destroy_node()
 
 
-def test_pose_quality_round_trip_through_the_odometry_message():
-    """What the ego_motion node writes into the pose covariance, the detection node reads
-    back unchanged (rclpy and rosbags messages alike)."""
-    from laser_tracker.conversions import (PlanarOdometry, bag_factory, odometry_to_msg,
-                                           pose_variance_from_msg, ros_factory)
+def test_pose_and_its_quality_cross_the_ego_motion_topics_unchanged():
+    """What the ego_motion node publishes (Odometry + status), the detection node reads back
+    unchanged, with rclpy and rosbags messages alike; the Odometry means what Odometry
+    means (pose, covariance, twist)."""
+    from laser_tracker.conversions import (bag_factory, ego_motion_from_msgs,
+                                           ego_motion_to_msgs, odometry_from_msg, ros_factory)
     from laser_tracker.core.difference import (FAILED_VARIANCE, DifferenceConfig, PoseQuality,
-                                               pose_trusted, quality_from_pose_variance,
-                                               quality_to_pose_variance)
+                                               pose_trusted)
+    from laser_tracker.core.stages import StampedPose
     from laser_tracker.tools.bag import TYPESTORE
 
     gate = DifferenceConfig()
     qualities = {PoseQuality((2.5e-5, 1.3e-4, 7.1e-6), 1.0 - 0.93): True,
                  PoseQuality((2.5e-5, 1.3e-4, 7.1e-6), 1.0 - 0.45): False,   # poor overlap
                  PoseQuality((FAILED_VARIANCE,) * 3, 1.0 - 0.8): False,      # ICP refused
-                 PoseQuality(): True}                                        # first scan
-    odom = PlanarOdometry(stamp=12.5, x=1.0, y=-2.0, theta=0.3, child_frame_id='laser')
+                 PoseQuality(restarted=True): True}                          # first scan
+    cov = np.array([[4e-4, 1e-5, 0.0], [1e-5, 9e-4, 2e-6], [0.0, 2e-6, 1e-4]])
     for factory in (ros_factory(), bag_factory(TYPESTORE)):
         for q, trusted in qualities.items():
-            msg = odometry_to_msg(factory, odom, pose_variance=quality_to_pose_variance(q))
-            back = quality_from_pose_variance(pose_variance_from_msg(msg))
-            assert back == q
-            assert pose_trusted(back, gate) is trusted
-        plain = odometry_to_msg(factory, odom)        # no covariance: nothing against it
-        assert pose_trusted(quality_from_pose_variance(pose_variance_from_msg(plain)), gate)
+            pose = StampedPose(stamp=12.5, pose=np.array([1.0, -2.0, 0.3]),
+                               motion=np.array([0.1, 0.0, 0.02]), dt=0.2,
+                               motion_covariance=np.diag([1e-4, 1e-4, 1e-5]),
+                               pose_covariance=cov, quality=q, source='icp', reason='test',
+                               child_frame_id='laser', stamp_ns=12_500_000_001)
+            odometry, status = ego_motion_to_msgs(factory, pose)
+            back = ego_motion_from_msgs(odometry, status)
+            assert back.quality == q and pose_trusted(back.quality, gate) is trusted
+            assert back.stamp_ns == 12_500_000_001
+            np.testing.assert_allclose(back.pose, pose.pose)
+            np.testing.assert_allclose(back.pose_covariance, cov)
+            odo = odometry_from_msg(odometry)
+            assert odo.child_frame_id == 'laser'
+            assert odo.vx == pytest.approx(0.5, abs=0.01) and odo.omega == pytest.approx(0.1)
+        alone = ego_motion_from_msgs(odometry)        # no status: another publisher
+        assert pose_trusted(alone.quality, gate) and not alone.quality.restarted
 
 
 def _offline_gated(messages, config):
@@ -245,7 +261,7 @@ def _offline_gated(messages, config):
         blobs[stamp] = res.blobs.xy.copy()
         tracks[stamp] = sorted(zip(h.track_id[keep].tolist(), h.position[keep, 0].tolist(),
                                    h.position[keep, 1].tolist()))
-    return blobs, tracks, pipeline.stats['gated: ego-motion not trusted']
+    return blobs, tracks, pipeline.events()['detection'].get('gated', 0)
 
 
 @pytest.mark.skipif(not BAG.exists(), reason=f'{BAG} not generated')
@@ -277,7 +293,7 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
     published_blobs = []
     graph.io.create_subscription(MarkerArray, 'blobs', published_blobs.append, 100)
     try:
-        assert graph.nodes[1].detector.difference_config.pose_min_inlier_ratio == strict
+        assert graph.nodes[1].stage.difference_config.pose_min_inlier_ratio == strict
         graph.wait_connected()
         sent_odom = 0
         for topic, _, msg in messages:
@@ -308,19 +324,12 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
 
 
 def test_ego_motion_restart_crosses_to_detection_and_tracking(ros_context):
-    """A restarted pose chain (source init) voids the odometry-frame history downstream too,
-    as Pipeline.step does offline: the flag rides in the pose covariance and the blobs."""
+    """A restarted pose chain voids the odometry-frame history downstream too, as the offline
+    pipeline does: the flag rides on ego_motion/status and then in the blobs."""
     from laser_tracker.conversions import (blobs_from_marker_array, blobs_to_marker_array,
                                            ros_factory)
     from laser_tracker.core.blobs import Blobs
-    from laser_tracker.core.difference import (PoseQuality, quality_from_pose_variance,
-                                               quality_to_pose_variance)
     from laser_tracker.nodes.tracking import TrackingNode
-
-    restarted = quality_from_pose_variance(quality_to_pose_variance(
-        PoseQuality(restarted=True)))
-    assert restarted.restarted and not restarted.failed
-    assert not quality_from_pose_variance([0.0] * 6).restarted
 
     node = TrackingNode(context=ros_context)
     try:
@@ -334,9 +343,9 @@ def test_ego_motion_restart_crosses_to_detection_and_tracking(ros_context):
 
         for k in range(6):                      # a blob walking at 1 m/s: hypotheses live
             node.on_blobs(blobs(0.2 * k, 0.2 * k))
-        assert len(node.tracker.hyp.weight) > 0
+        assert len(node.stage.hypotheses.hyp) > 0
         node.on_blobs(blobs(1.2, 1.2, restart=True))
-        assert len(node.tracker.hyp.weight) == 0   # reset, then one lone blob: nothing yet
+        assert len(node.stage.hypotheses.hyp) == 0   # reset, then one lone blob: nothing yet
     finally:
         node.destroy_node()
 

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from laser_tracker.config import ConfigError
-from laser_tracker.core.hypotheses import Tracker
-from laser_tracker.core.pipeline import Detector, Pipeline, PipelineConfig
+from laser_tracker.core.difference import PoseQuality
+from laser_tracker.core.pipeline import Pipeline, PipelineConfig
 from laser_tracker.core.scan import Scan
+from laser_tracker.core.stages import Detector, StampedPose, Tracker
 from laser_tracker.tools.sim.world import World, cast
 
 DT = 0.2
@@ -58,6 +59,13 @@ def run(pipeline, world, poses, movers_at, n, beams=lambda k: 361):
 
 def still(t):
     return np.array([0.0, 0.0, 0.0])
+
+
+def stamped(stamp, pose, quality=None):
+    """A StampedPose as the detection node builds it from the ego_motion topics."""
+    return StampedPose(stamp=stamp, pose=np.asarray(pose, float), motion=np.zeros(3),
+                       motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
+                       quality=quality or PoseQuality())
 
 
 def test_a_moving_object_is_confirmed_with_its_velocity():
@@ -129,12 +137,14 @@ def test_bad_input_beam_count_change_nan_ranges_time_backwards(caplog):
         r = pipeline.step(nan_scan)
         assert r.skipped is None
         same = pipeline.step(nan_scan)                   # the same stamp again
-        assert same.skipped == 'duplicate stamp'
+        assert same.skipped == 'ego-motion: duplicate stamp'
         back = pipeline.step(make_scan(world, still(0), 0.5, mover(0.5)))   # backwards
         assert back.skipped is None
     assert any(r.blobs.count for r in res[6:])             # 181 beams still detect
-    assert pipeline.stats['reset: time went backwards'] == 1
-    assert pipeline.stats['skipped: duplicate stamp'] == 1
+    events = pipeline.events()
+    assert events['ego_motion']['restart'] == 1
+    assert events['ego_motion']['scan skipped: duplicate stamp'] == 1
+    assert events['detection']['restart'] == 1 and events['tracking']['restart'] == 1
     assert 'backwards' in caplog.text
 
 
@@ -152,7 +162,7 @@ def test_detection_and_tracking_separately_equal_the_pipeline():
     for r in res:
         scan = make_scan(world, still(r.stamp), r.stamp, mover(r.stamp),
                          seed=int(round((r.stamp - 1.0) / DT)))
-        det = detector.detect(scan, r.pose)
+        det = detector.update(scan, stamped(r.stamp, r.pose))
         assert np.allclose(det.blobs.xy, r.blobs.xy)
         frame = tracker.update(det.blobs)
         assert np.array_equal(frame.hypotheses.track_id, r.hypotheses.track_id)
@@ -172,25 +182,14 @@ def test_grids_on_request():
     assert plain.detection.grid is None
 
 
-def test_config_round_trip_and_errors():
+def test_config_replace_validates():
     config = PipelineConfig()
+    assert config.replace(hypotheses={'w_inc': 55}).hypotheses.w_inc == 55.0
+    with pytest.raises(ConfigError, match='hypotheses.gate'):
+        config.replace(hypotheses={'gate': -1.0})
     nodes = config.to_ros_params()
     assert set(nodes) == {'ego_motion', 'detection', 'tracking'}
     assert 'grid.resolution' in nodes['detection'] and 'kalman.q' in nodes['tracking']
-    assert PipelineConfig.from_ros_params(nodes) == config
-    nodes['tracking']['hypotheses.w_inc'] = 55.0
-    nodes['other_node'] = {'anything': 1}          # other nodes of the file are left alone
-    assert PipelineConfig.from_ros_params(nodes).hypotheses.w_inc == 55.0
-    with pytest.raises(ConfigError, match='hypotheses.gate'):
-        config.replace(hypotheses={'gate': -1.0})
-    bad = config.to_ros_params()
-    bad['detection']['grid.colour'] = 'red'
-    with pytest.raises(ConfigError, match='colour'):
-        PipelineConfig.from_ros_params(bad)
-    bad = config.to_ros_params()
-    bad['detection']['kalman.q'] = 0.1             # a tracking section under detection
-    with pytest.raises(ConfigError, match='kalman.q'):
-        PipelineConfig.from_ros_params(bad)
 
 
 def test_paper_values_are_the_defaults_where_the_paper_gives_them():
@@ -244,9 +243,11 @@ def _estimate(source, inlier_ratio=0.9, var=1e-4, rms=0.02):
 
 
 def test_pose_quality_of_estimates_and_its_covariance_form():
-    from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, pose_quality,
-                                               pose_trusted, quality_from_pose_variance,
-                                               quality_to_pose_variance)
+    from laser_tracker.conversions import (bag_factory, ego_motion_from_msgs,
+                                           ego_motion_to_msgs)
+    from laser_tracker.core.difference import DifferenceConfig, pose_quality, pose_trusted
+    from laser_tracker.tools.bag import TYPESTORE
+    factory = bag_factory(TYPESTORE)
     on = DifferenceConfig()
     off = DifferenceConfig(pose_gate=False)
     assert on.pose_gate and on.pose_min_inlier_ratio == 0.6
@@ -266,24 +267,24 @@ def test_pose_quality_of_estimates_and_its_covariance_form():
         q = pose_quality(est)
         assert pose_trusted(q, on) is trusted, est.source
         assert pose_trusted(q, off)                # off: the previous behaviour
-        back = quality_from_pose_variance(quality_to_pose_variance(q))
+        # Across the ego_motion / ego_motion/status messages, bit for bit.
+        msgs = ego_motion_to_msgs(factory, stamped(1.0, (1.0, 2.0, 0.3), q))
+        back = ego_motion_from_msgs(*msgs).quality
         assert pose_trusted(back, on) is trusted
-        if not q.failed:
-            assert back == q                       # bit for bit
+        assert back == q or (q.failed and back.failed)
     assert pose_quality(_estimate('icp', 0.9)).variance[0] == pytest.approx(1e-4)
     assert not pose_trusted(pose_quality(_estimate('icp', 0.5)),
                             DifferenceConfig(pose_min_inlier_ratio=0.6))
     assert pose_trusted(pose_quality(_estimate('icp', 0.5)),
                         DifferenceConfig(pose_min_inlier_ratio=0.0))
-    # An all-zero covariance (a publisher that says nothing) is trusted; garbage is not.
-    assert pose_trusted(quality_from_pose_variance([0.0] * 6), on)
-    assert not pose_trusted(quality_from_pose_variance([np.inf, 0, 0, 0, 0, 0]), on)
-    assert not pose_trusted(quality_from_pose_variance([0, 0, -3.0, 0, 0, 0]), on)
+    # A pose without a status (another publisher) is trusted.
+    odometry, _ = ego_motion_to_msgs(factory, stamped(1.0, (0.0, 0.0, 0.0)))
+    assert pose_trusted(ego_motion_from_msgs(odometry).quality, on)
     assert pose_trusted(None, on) and pose_trusted(PoseQuality(), on)
 
 
 def test_untrusted_pose_reports_no_blobs_and_keeps_the_grid_history():
-    from laser_tracker.core.difference import PoseQuality, pose_quality
+    from laser_tracker.core.difference import pose_quality
     world = room()
 
     def moving(t):
@@ -307,9 +308,9 @@ def test_untrusted_pose_reports_no_blobs_and_keeps_the_grid_history():
         for k, scan in enumerate(scans):
             pose = moving(scan.stamp)
             q = quality if k == 3 else good
-            ref = reference.detect(scan, pose, quality=good)
-            det = gated.detect(scan, pose, quality=q)
-            det_off = off.detect(scan, pose, quality=q)
+            ref = reference.update(scan, stamped(scan.stamp, pose, good))
+            det = gated.update(scan, stamped(scan.stamp, pose, q))
+            det_off = off.update(scan, stamped(scan.stamp, pose, q))
             assert np.array_equal(det_off.blobs.xy, ref.blobs.xy)     # off: as before
             if k == 3:
                 assert ref.blobs.count > 0, 'the mover should be a blob on a trusted scan'
@@ -332,7 +333,7 @@ def test_pipeline_withholds_blobs_of_a_scan_placed_by_odometry_and_tracking_coas
 
     def run_with(config, bad_scans):
         pipeline = Pipeline(config)
-        update = pipeline.ego.update
+        update = pipeline.ego.estimator.update
         k = {'n': 0}
 
         def degraded(scan):          # ICP "refused" on the chosen scans: odometry used
@@ -342,7 +343,7 @@ def test_pipeline_withholds_blobs_of_a_scan_placed_by_odometry_and_tracking_coas
             k['n'] += 1
             return est
 
-        pipeline.ego.update = degraded
+        pipeline.ego.estimator.update = degraded
         return pipeline, run(pipeline, world, still, mover, 16)
 
     bad = {10}
@@ -351,7 +352,7 @@ def test_pipeline_withholds_blobs_of_a_scan_placed_by_odometry_and_tracking_coas
     _, off = run_with(PipelineConfig().replace(difference={'pose_gate': False}), bad)
     assert ref[10].blobs.count > 0 and off[10].blobs.count == ref[10].blobs.count
     assert res[10].blobs.count == 0 and res[10].detection.gated
-    assert pipeline.stats['gated: ego-motion not trusted'] == 1
+    assert pipeline.events()['detection']['gated'] == 1
     for k in range(10):
         assert np.array_equal(res[k].blobs.xy, ref[k].blobs.xy)
     assert res[11].blobs.count > 0                  # the next scan reports again

@@ -43,7 +43,8 @@ def test_replay_of_a_bundled_recording_writes_consistent_outputs(tmp_path):
     head, ego = read_csv(tmp_path / 'ego_motion.csv')
     assert head == ['stamp', 'x', 'y', 'theta']
     head, tracks = read_csv(tmp_path / 'tracks.csv')
-    assert head == ['stamp', 'track_id', 'x', 'y', 'vx', 'vy', 'weight', 'confirmed']
+    assert head == ['stamp', 'track_id', 'x', 'y', 'vx', 'vy', 'weight', 'confirmed', 'kind',
+                    'moving']
     assert len(ego) == summary['scans'] > 100
     ego_stamps = [float(r[0]) for r in ego]
     assert ego_stamps == sorted(ego_stamps) and len(set(ego_stamps)) == len(ego_stamps)
@@ -110,11 +111,11 @@ def test_bad_recording_is_survived_and_counted(tmp_path):
     assert any(k.startswith('malformed scan') for k in skipped)
     assert summary['scan_messages'] == 14
     assert summary['scans'] + sum(skipped.values()) == 14
-    assert skipped.get('duplicate stamp') == 1
+    assert skipped.get('ego-motion: duplicate stamp') == 1
     assert summary['odom_topic'] is None                                  # scan matching alone
-    events = summary['pipeline_events']
-    assert events.get('reset: time went backwards') == 1
-    assert 'reset: ego-motion restarted' not in events          # one reset, counted once
+    events = summary['events']
+    for stage in ('ego_motion', 'detection', 'tracking'):       # each stage restarts once
+        assert events[stage].get('restart') == 1, stage
     _, ego = read_csv(tmp_path / 'out' / 'ego_motion.csv')
     assert len(ego) == summary['scans']
 

@@ -188,7 +188,8 @@ def test_missing_device_is_reported_in_diagnostics(harness):
 
 
 def test_impossible_variant_parameters_are_refused(ros_context, link):
-    with pytest.raises(SystemExit, match='0.25 degree resolution needs the 100 degree'):
+    from laser_tracker.config import ConfigError
+    with pytest.raises(ConfigError, match='0.25 degree resolution needs the 100 degree'):
         SickLmsDriverNode(context=ros_context, parameter_overrides=[
             Parameter('port', value=str(link)), Parameter('scan_angle', value=180),
             Parameter('resolution', value=0.25)])

@@ -83,6 +83,7 @@ class Blobs:
     frame_id: str = 'odom'
     dropped: int = field(default=0)       # blobs dropped by max_blobs
     restarted: bool = False               # the pose chain restarted here: tracks are void
+    stamp_ns: int | None = None           # the scan's exact stamp (integer ns), when known
 
     @property
     def count(self) -> int:

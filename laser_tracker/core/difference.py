@@ -51,9 +51,8 @@ Options (not in the paper):
   matches explain 66-70 % of the points).
 
 Pose quality (:class:`PoseQuality`, from an ego-motion estimate by :func:`pose_quality`) is
-what the gate reads; it crosses the node boundary as the pose covariance of the
-``ego_motion`` message (:func:`quality_to_pose_variance` / :func:`quality_from_pose_variance`,
-layout in :func:`quality_to_pose_variance`).
+what the gate reads; between the nodes it travels on ``ego_motion/status`` beside the pose
+(``conversions.ego_motion_to_msgs``).
 """
 from __future__ import annotations
 
@@ -106,6 +105,10 @@ class DifferenceConfig:
         0.6, 'With pose_gate: least fraction of the scan\'s points the ego-motion match '
         'must have matched for the scan to report changes (0 = only the ICP-refused test).',
         min=0.0, max=1.0)
+    max_gap: float = param(
+        2.0, 'A scan more than this long (s) after the previous one is not compared with the '
+        'grids before the gap (the scene and the platform moved on): it starts a new '
+        'history.', min=0.01, max=3600.0)
 
 
 @dataclass(frozen=True)
@@ -167,30 +170,6 @@ def pose_trusted(quality: PoseQuality | None, config: DifferenceConfig) -> bool:
     if quality is None or not config.pose_gate:
         return True
     return not quality.failed and quality.unmatched <= 1.0 - config.pose_min_inlier_ratio
-
-
-def quality_to_pose_variance(quality: PoseQuality) -> list[float]:
-    """The 6 diagonal terms (x, y, z, roll, pitch, yaw) of a nav_msgs/Odometry pose
-    covariance that carry ``quality``:
-
-    * x, y, yaw: ``quality.variance`` (:data:`FAILED_VARIANCE` each when ICP was refused);
-    * z: ``quality.unmatched``, the fraction of scan points the match left unexplained
-      (a planar estimate has no z; as an *un*matched fraction an all-zero covariance, which
-      other publishers send, reads as "nothing known against this pose");
-    * roll: 1 when the pose chain restarted at this scan (``quality.restarted``), else 0;
-    * pitch: 0 (not estimated).
-    """
-    vx, vy, vyaw = (float(v) for v in quality.variance)
-    return [vx, vy, float(quality.unmatched), 1.0 if quality.restarted else 0.0, 0.0, vyaw]
-
-
-def quality_from_pose_variance(diag6) -> PoseQuality:
-    """Inverse of :func:`quality_to_pose_variance`. A non-finite or negative x, y or yaw
-    variance reads as failed, an unmatched fraction outside [0, 1] as nothing matched."""
-    vx, vy, unmatched, restart, _, vyaw = (float(v) for v in diag6)
-    var = tuple(v if (math.isfinite(v) and v >= 0.0) else FAILED_VARIANCE
-                for v in (vx, vy, vyaw))
-    return PoseQuality(var, unmatched if 0.0 <= unmatched <= 1.0 else 1.0, restart >= 0.5)
 
 
 def difference_map(grid: np.ndarray, previous_in_current: np.ndarray) -> np.ndarray:

@@ -6,7 +6,8 @@ All hypotheses live in stacked arrays (:class:`HypothesisArrays`); one frame of 
 them all at once. Distances in Equations 2 and 3 are in ``distance_unit`` (the 10 cm grid
 cell: METHOD.md Sec. 4), positions in the odometry frame.
 
-Per frame (``Tracker.update(blobs)``):
+Per frame (``HypothesisTracker.update(blobs)``; the stream rules, such as time going
+backwards, belong to the ``core.stages.Tracker`` stage around it):
 
 1. **Prediction** ``H_est`` of every hypothesis at the blobs' stamp.
 2. **Blob weights**, Equation 2: ``B_weight = 100 - sum_i max(50 - dist(H_est_i, B_pos), 0)``
@@ -113,6 +114,9 @@ class HypothesisConfig:
     max_blob_range: float = param(50.0, 'Blobs further than this (m) from the scanner are '
                                   'dropped with a warning (corrupt input).', min=0.1,
                                   max=100000.0)
+    moving_speed: float = param(0.2, 'A track slower than this (m/s) is reported as not '
+                                'moving (the "moving" flag of the tracks).', min=0.0,
+                                max=10.0)
     max_gap: float = param(2.0, 'A gap between frames longer than this (s) drops every '
                            'hypothesis (predictions are meaningless).', min=0.01, max=3600.0)
 
@@ -192,6 +196,34 @@ class HypothesisArrays:
 
 
 @dataclass
+class Tracks:
+    """What the tracker reports at one frame (the ``tracks`` topic): one row per hypothesis.
+
+    ``covariance`` (k, 2, 2): of ``position``; ``moving``: speed at least
+    ``hypotheses.moving_speed``; ``kind``: what found it (``object``: motion).
+    """
+
+    stamp: float
+    track_id: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    covariance: np.ndarray
+    weight: np.ndarray
+    samples: np.ndarray
+    confirmed: np.ndarray
+    moving: np.ndarray
+    kind: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.track_id.size)
+
+    def select(self, mask) -> Tracks:
+        return Tracks(self.stamp, *(getattr(self, f)[mask] for f in (
+            'track_id', 'position', 'velocity', 'covariance', 'weight', 'samples',
+            'confirmed', 'moving', 'kind')))
+
+
+@dataclass
 class FrameResult:
     """What one tracker update reports."""
 
@@ -202,8 +234,8 @@ class FrameResult:
     bounded: bool                 # the max_hypotheses bound was hit
 
 
-class Tracker:
-    """Hypothesis tracking over frames of blobs (the ``tracking`` node's core)."""
+class HypothesisTracker:
+    """Hypothesis creation and management over frames of blobs (paper Sec. 7-8)."""
 
     def __init__(self, config: HypothesisConfig | None = None,
                  kalman: KalmanConfig | None = None):
@@ -224,6 +256,28 @@ class Tracker:
         self.hyp = HypothesisArrays.empty(self.filter.dim)
         self.prev_xy = np.zeros((0, 2))
         self.prev_stamp: float | None = None
+
+    def report(self, stamp: float) -> Tracks:
+        """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated)."""
+        h = self.hyp
+        speed2 = (h.velocity ** 2).sum(axis=1)
+        return Tracks(stamp=float(stamp), track_id=h.track_id, position=h.position.copy(),
+                      velocity=h.velocity.copy(),
+                      covariance=self.filter.position_covariance(h.P, h.t_state, stamp),
+                      weight=h.weight.copy(), samples=h.samples, confirmed=h.confirmed,
+                      moving=speed2 >= self.config.moving_speed ** 2,
+                      kind=np.full(len(h), 'object', dtype=object))
+
+    def reconfigure(self, config: HypothesisConfig, kalman: KalmanConfig) -> bool:
+        """Use new parameters from the next frame. Returns True when the hypotheses must be
+        reset (a new filter mode: their state vectors differ)."""
+        self.config = config
+        if kalman == self.filter.config:
+            return False
+        new = TrackFilter(kalman)
+        reset = new.dim != self.filter.dim
+        self.filter = new
+        return reset
 
     def _new_ids(self, n: int) -> np.ndarray:
         ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
@@ -261,18 +315,6 @@ class Tracker:
         """One frame: the blobs of one scan (odometry frame) -> updated hypotheses."""
         c = self.config
         t = float(blobs.stamp)
-        if not math.isfinite(t):
-            log.warning('blobs with a non-finite stamp ignored')
-            return self._result(t, np.zeros(0, np.intp), 0, False)
-        if self.prev_stamp is not None:
-            if t < self.prev_stamp:
-                self.reset(f'time went backwards ({self.prev_stamp:.3f} -> {t:.3f} s)')
-            elif t == self.prev_stamp:
-                log.warning('t=%.3f: blobs with the same stamp as the previous frame ignored',
-                            t)
-                return self._result(t, np.zeros(0, np.intp), 0, False)
-            elif t - self.prev_stamp > c.max_gap:
-                self.reset(f'gap of {t - self.prev_stamp:.3f} s > max_gap')
         xy, ok = self._clean(blobs)
         structure = np.asarray(blobs.structure, dtype=float).reshape(-1)
         if structure.shape[0] == ok.shape[0]:

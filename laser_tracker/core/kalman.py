@@ -45,6 +45,10 @@ class KalmanConfig:
     cv_position_noise: float = param(0.01, 'cv mode: variance (m^2) of a blob centroid as a '
                                      'measurement of the target position.', min=1e-9,
                                      max=100.0)
+    position_variance: float = param(0.01, 'Paper mode: variance (m^2) of a supporting blob '
+                                     "as the target's position, for the position covariance "
+                                     'the tracks report (the filter itself estimates only '
+                                     'the velocity).', min=1e-9, max=100.0)
 
 
 def _inv2(s: np.ndarray) -> np.ndarray:
@@ -144,6 +148,14 @@ class TrackFilter:
         x, Pp = cv_predict(state, P, dt, self.config.cv_accel_noise)
         x, P = cv_update(x, Pp, blob, self.config.cv_position_noise)
         return x, P, x[:, :2]
+
+    def position_covariance(self, P: np.ndarray, t_state: np.ndarray,
+                            t: float) -> np.ndarray:
+        """Covariance (k, 2, 2) of the predicted positions at ``t``."""
+        dt = (t - np.asarray(t_state, dtype=float))[:, None, None]
+        if self.paper:
+            return self.config.position_variance * np.eye(2) + P * dt * dt
+        return (P[:, :2, :2] + dt * (P[:, :2, 2:] + P[:, 2:, :2]) + dt * dt * P[:, 2:, 2:])
 
     def coast(self, P: np.ndarray) -> np.ndarray:
         """A frame without support: the prediction step only (paper: P- = P + Q).

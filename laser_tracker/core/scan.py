@@ -44,13 +44,14 @@ class Scan:
     time_increment: float = 0.0
     scan_time: float = 0.0
     frame_id: str = 'laser'
+    stamp_ns: int | None = None   # the exact message stamp (integer ns), when known
 
     def __post_init__(self):
         self.ranges = np.asarray(self.ranges, dtype=np.float64).ravel()
         if self.ranges.size == 0:
             raise ScanError('scan has no beams')
-        if not np.isfinite(self.stamp):
-            raise ScanError(f'scan stamp is not finite: {self.stamp!r}')
+        if not np.isfinite(self.stamp) or self.stamp < 0:
+            raise ScanError(f'scan stamp must be finite and not negative: {self.stamp!r}')
         if not (np.isfinite(self.angle_increment) and self.angle_increment != 0.0):
             raise ScanError(f'angle_increment must be finite and non-zero, '
                             f'got {self.angle_increment!r}')

@@ -1,80 +1,137 @@
-"""What the node shells share: running a node, declaring pipeline sections, pairing streams."""
+"""What the node shells share: running nodes, guarded callbacks, QoS profiles.
+
+* :func:`run` starts one or more nodes in one executor and stops them within a second or two
+  of Ctrl-C or SIGTERM, every time: rclpy's own signal handling is replaced by a flag that
+  the spin loop checks, cleanup runs under a watchdog, and a start-up configuration error is
+  one line on stderr with exit status 2 (no traceback).
+* :func:`guarded` wraps a subscription callback so that no message can kill a node: anything
+  a publisher on the same topic can send that the conversions or the stage cannot use is a
+  throttled warning (with a count) and the node carries on.
+"""
 from __future__ import annotations
 
-from collections import OrderedDict
-from collections.abc import Callable
+import functools
+import os
+import signal
+import sys
+import threading
+from collections import Counter
+from collections.abc import Callable, Iterable
 
 import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from laser_tracker.conversions import scan_from_msg
-from laser_tracker.core.scan import Scan, ScanError
-from laser_tracker.nodes.params import declare_section
-from laser_tracker.parameters import NODE_SECTIONS
+from laser_tracker.config import ConfigError
+from laser_tracker.nodes import params
+
+#: Sensor streams we read: best effort, so both best-effort and reliable publishers reach us.
+SENSOR_IN = qos_profile_sensor_data
+#: What we publish: reliable, so default-QoS subscribers (RViz, users' nodes) receive it too.
+RELIABLE_OUT = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: Odometry in: best effort, deeper (it comes in bursts at a higher rate than scans).
+ODOMETRY_IN = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+STOP_TIMEOUT = 1.5   # s: cleanup after a stop request never takes longer than this
+WARNING_PERIOD = 5.0  # s between two warnings of the same kind from one node
 
 
-def declare_node_parameters(node, node_name: str) -> dict:
-    """Declare every parameter of ``node_name`` (``laser_tracker.parameters``); return
-    ``{section prefix: section instance}`` ('' = the node's plain-named parameters)."""
-    return {prefix: declare_section(node, cls, prefix)
-            for prefix, cls in NODE_SECTIONS[node_name].items()}
+def guarded(node, what: str):
+    """Decorator: exceptions of the callback become a throttled warning naming ``what``;
+    ``node.dropped[what]`` counts them."""
+    if not hasattr(node, 'dropped'):
+        node.dropped = Counter()
+
+    def wrap(callback: Callable):
+        @functools.wraps(callback)
+        def safe(*args, **kwargs):
+            try:
+                return callback(*args, **kwargs)
+            except Exception as exc:  # noqa: BLE001 - a node never dies on a message
+                node.dropped[what] += 1
+                node.get_logger().warning(
+                    f'{what}: message dropped ({type(exc).__name__}: {exc}); '
+                    f'{node.dropped[what]} dropped so far', throttle_duration_sec=WARNING_PERIOD)
+        return safe
+    return wrap
 
 
-def scan_or_warn(node, msg) -> Scan | None:
-    """The Scan of a LaserScan message, or None after a throttled warning saying why."""
+def throttled_warning(node, text: str) -> None:
+    node.get_logger().warning(text, throttle_duration_sec=WARNING_PERIOD)
+
+
+def parameter_files(args: Iterable[str] | None) -> list[str]:
+    """The ``--params-file`` paths among ROS command-line arguments."""
+    args = list(sys.argv if args is None else args)
+    files, in_ros = [], False
+    for i, arg in enumerate(args):
+        if arg == '--ros-args':
+            in_ros = True
+        elif arg == '--':
+            in_ros = False
+        elif in_ros and arg == '--params-file' and i + 1 < len(args):
+            files.append(args[i + 1])
+    return files
+
+
+def run(factories: Callable | Iterable[Callable], args=None, name: str | None = None) -> None:
+    """Run the nodes made by ``factories`` in one executor until Ctrl-C, SIGTERM or an
+    external shutdown; exit status 0, or 2 after a configuration error (one line)."""
+    factories = [factories] if callable(factories) else list(factories)
+    name = name or os.path.basename(sys.argv[0] or 'laser_tracker')
+    params.PARAMETER_FILES[:] = parameter_files(args)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        if stop.is_set():            # a second Ctrl-C: leave at once
+            os._exit(130)
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    status = 0
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    executor = SingleThreadedExecutor()
+    nodes = []
     try:
-        return scan_from_msg(msg)
-    except ScanError as exc:
-        node.get_logger().warning(f'scan skipped: {exc}', throttle_duration_sec=5.0)
-        return None
-
-
-def run(node_factory: Callable[[], object], args=None) -> None:
-    """``rclpy.init``, spin one node until Ctrl-C or shutdown, clean up."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = node_factory()
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    except rclpy.executors.ExternalShutdownException:
+        for factory in factories:
+            nodes.append(factory())
+            executor.add_node(nodes[-1])
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except ConfigError as exc:
+        print(f'{name}: {exc}', file=sys.stderr, flush=True)
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if node is not None:
-            node.destroy_node()
+        _shutdown(executor, nodes, status)
+        for s, handler in old.items():
+            signal.signal(s, handler)
+    if status:
+        sys.exit(status)
+
+
+def _shutdown(executor, nodes, status: int) -> None:
+    """Destroy the nodes and shut rclpy down; if that hangs, leave after STOP_TIMEOUT."""
+    watchdog = threading.Timer(STOP_TIMEOUT, _leave, (status,))
+    watchdog.daemon = True
+    watchdog.start()
+    try:
+        for node in nodes:
+            try:
+                node.destroy_node()
+            except Exception:  # noqa: BLE001 - shutting down regardless
+                pass
+        executor.shutdown(timeout_sec=0.5)
         rclpy.try_shutdown()
+    except Exception:  # noqa: BLE001
+        pass
+    finally:
+        watchdog.cancel()
 
 
-class StampPairer:
-    """Pairs two message streams by identical stamps (an exact-time synchroniser).
-
-    Keeps at most ``depth`` unmatched items per side; the oldest are dropped first.
-    """
-
-    def __init__(self, on_pair: Callable[[object, object], None], depth: int = 20):
-        self.on_pair = on_pair
-        self.depth = depth
-        self.left: OrderedDict[int, object] = OrderedDict()
-        self.right: OrderedDict[int, object] = OrderedDict()
-        self.dropped = 0
-
-    def add_left(self, stamp_ns: int, item) -> None:
-        self._add(stamp_ns, item, self.left, self.right, left_first=True)
-
-    def add_right(self, stamp_ns: int, item) -> None:
-        self._add(stamp_ns, item, self.right, self.left, left_first=False)
-
-    def _add(self, stamp_ns, item, mine, other, left_first) -> None:
-        match = other.pop(stamp_ns, None)
-        if match is None:
-            mine[stamp_ns] = item
-            while len(mine) > self.depth:
-                mine.popitem(last=False)
-                self.dropped += 1
-            return
-        # Everything older than a matched stamp can no longer be matched in order.
-        for buf in (mine, other):
-            for old in [k for k in buf if k < stamp_ns]:
-                del buf[old]
-                self.dropped += 1
-        self.on_pair(*((item, match) if left_first else (match, item)))
+def _leave(status: int) -> None:
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)

@@ -6,9 +6,7 @@ a serial fault never stalls tracking.
 """
 from __future__ import annotations
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
+from laser_tracker.nodes import common
 from laser_tracker.nodes.active_head import ActiveHeadNode
 from laser_tracker.nodes.detection import DetectionNode
 from laser_tracker.nodes.ego_motion import EgoMotionNode
@@ -18,21 +16,7 @@ NODE_CLASSES = (EgoMotionNode, DetectionNode, TrackingNode, ActiveHeadNode)
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    nodes = []
-    executor = SingleThreadedExecutor()
-    try:
-        for cls in NODE_CLASSES:
-            nodes.append(cls())
-            executor.add_node(nodes[-1])
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    common.run(NODE_CLASSES, args, name='laser_tracker_all')
 
 
 if __name__ == '__main__':

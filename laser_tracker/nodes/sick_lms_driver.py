@@ -18,9 +18,7 @@ import threading
 import time
 from collections import deque
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
@@ -28,6 +26,7 @@ from sensor_msgs.msg import LaserScan
 from laser_tracker.conversions import scan_to_msg, ros_factory
 from laser_tracker.core.scan import ScanError
 from laser_tracker.nodes import common
+from laser_tracker.nodes.params import LiveParameters
 from laser_tracker.sick.driver import SickLmsConfig, SickLmsDriver, SickScan
 from laser_tracker.sick.protocol import StatusByte
 
@@ -41,7 +40,8 @@ class SickLmsDriverNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('sick_lms_driver', **kwargs)
-        self.config: SickLmsConfig = common.declare_node_parameters(self, 'sick_lms_driver')['']
+        self.params = LiveParameters(self, 'sick_lms_driver', self._apply_parameters)
+        self.config: SickLmsConfig = self.params.sections['']
         self._factory = ros_factory()
         self._scan_pub = self.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -62,6 +62,14 @@ class SickLmsDriverNode(Node):
             f'opening {self.config.port}: {self.config.scan_angle} deg / '
             f'{self.config.resolution:g} deg, {self.config.units}, {self.config.baud} baud, '
             f'frame {self.config.frame_id}{", inverted" if self.config.inverted else ""}')
+
+    def _apply_parameters(self, sections: dict) -> None:
+        """Only ``diagnostics_period`` can change while running (the rest is read-only)."""
+        self.config = sections['']
+        self._diag_timer.cancel()
+        self.destroy_timer(self._diag_timer)
+        self._diag_timer = self.create_timer(self.config.diagnostics_period,
+                                             self.publish_diagnostics)
 
     # ------------------------------------------------------------- driver thread side
     def _now(self) -> float:
@@ -160,17 +168,7 @@ class SickLmsDriverNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SickLmsDriverNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    common.run(SickLmsDriverNode, args)
 
 
 if __name__ == '__main__':

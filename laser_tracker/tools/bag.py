@@ -7,6 +7,7 @@ visualization_msgs/MarkerArray (the moving-object schema of ``laser_tracker.conv
 """
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ SCAN_TOPIC = '/scan'
 ODOM_TOPIC = '/odom'
 GROUND_TRUTH_TOPIC = '/ground_truth'
 PLATFORM_TRUTH_TOPIC = '/ground_truth/platform'
+PACKAGE = 'laser_tracker'
 
 
 class BagWriter:
@@ -184,3 +186,50 @@ def read_platform_truth(path: str | Path, topic: str = PLATFORM_TRUTH_TOPIC) -> 
     if topic not in topics(path):
         raise InputFileError(path, f'has no platform ground truth (no {topic} topic)')
     return read_odometry(path, topic)
+
+
+# ------------------------------------------------------------------ bundled recordings
+
+
+def bag_folders() -> list[Path]:
+    """Where bundled recordings may live, most specific first."""
+    folders = [Path(__file__).resolve().parents[2] / 'bags']  # source tree / editable install
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        folders.append(Path(get_package_share_directory(PACKAGE)) / 'bags')
+    except Exception:  # ament_index_python absent, or the package not in an ament index
+        pass
+    folders.append(Path(sys.prefix) / 'share' / PACKAGE / 'bags')  # pip install
+    unique = []
+    for f in folders:
+        if f not in unique:
+            unique.append(f)
+    return unique
+
+
+def bundled_bags() -> list[str]:
+    names = set()
+    for folder in bag_folders():
+        if folder.is_dir():
+            names.update(p.name for p in folder.iterdir() if p.is_dir() or p.suffix == '.bag')
+    return sorted(names)
+
+
+def resolve_bag(name: str | Path) -> Path:
+    """A recording path as given if it exists, else a bundled recording of that name."""
+    path = Path(name)
+    if path.exists():
+        return path
+    for folder in bag_folders():
+        candidate = folder / path.name
+        if candidate.exists():
+            return candidate
+    known = bundled_bags()
+    hint = f'bundled: {", ".join(known)}' if known else \
+        'no bundled recordings found (generate them with `make bags`)'
+    raise InputFileError(name, f'no such recording; {hint}')
+
+
+def has_ground_truth(bag: Path) -> bool:
+    found = topics(bag)
+    return GROUND_TRUTH_TOPIC in found and PLATFORM_TRUTH_TOPIC in found

@@ -80,7 +80,7 @@ class Events:
 def load_bag(name: str) -> Events:
     from laser_tracker.conversions import odometry_from_msg, scan_from_msg
     from laser_tracker.tools.bag import iter_messages, topics
-    from laser_tracker.tools.demo import resolve_bag
+    from laser_tracker.tools.bag import resolve_bag
 
     path = resolve_bag(name)
     info = topics(path)

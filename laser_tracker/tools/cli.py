@@ -52,7 +52,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except LaserTrackerError as exc:
-        print(f'laser-tracker {name}: error: {exc}', file=sys.stderr)
+        print(f'laser-tracker {name}: error: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 2
+    except OSError as exc:   # an output that cannot be written, a disk that is full, ...
+        where = f'{exc.filename}: ' if getattr(exc, 'filename', None) else ''
+        print(f'laser-tracker {name}: error: {where}{exc.strerror or exc}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f'laser-tracker {name}: interrupted', file=sys.stderr)

@@ -7,8 +7,10 @@ as a ROS 2 parameter file: ``sick_lms_driver``, ``ego_motion`` (plus section ``e
 ``config/laser_tracker.yaml`` is this output, committed (a test keeps it equal to the
 defaults, so every value is declared once, in the code).
 
-``--check PATH`` loads a file as the nodes and ``replay`` would and reports the first problem
-(unknown parameter, wrong type, value out of range) with exit status 2.
+``--check PATH`` loads a file with the package's one loader, exactly as the nodes and
+``replay`` do (``laser_tracker.parameters.load``), and reports the first problem (an entry
+that configures none of our nodes, an unknown parameter, a wrong type, a value out of range)
+in one line with exit status 2. ``--namespace NS`` checks it for nodes running in ``NS``.
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ import argparse
 from pathlib import Path
 
 from laser_tracker import parameters
-from laser_tracker.config import ConfigError, read_ros_yaml, render_ros_yaml
+from laser_tracker.config import ConfigError, render_ros_yaml
 from laser_tracker.core.pipeline import PipelineConfig
 from laser_tracker.tools.atomic import atomic_path
 
@@ -34,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--write', metavar='PATH',
                        help="write the defaults as a ROS parameter file ('-' = stdout)")
     group.add_argument('--check', metavar='PATH', help='validate a ROS parameter file')
+    parser.add_argument('--namespace', metavar='NS',
+                        help='with --check: the namespace the nodes will run in (default: '
+                             'any)')
     parser.add_argument('--paper', action='store_true',
                         help="with --write: the paper's reference mode (every addition that "
                              "is not in the paper off; config/paper_reference.yaml)")
@@ -54,14 +59,13 @@ def render_defaults(paper: bool = False) -> str:
     return render_ros_yaml(parameters.defaults(paper), PAPER_HEADER if paper else HEADER)
 
 
-def check(path: str | Path) -> PipelineConfig:
+def check(path: str | Path, namespace: str | None = None) -> PipelineConfig:
     """Load ``path`` as the nodes and replay would; ConfigError names the problem."""
-    nodes = read_ros_yaml(path)
-    if not any(n in nodes for n in parameters.NODE_SECTIONS):
-        raise ConfigError(f'{path}: none of the nodes {", ".join(parameters.NODE_SECTIONS)} '
-                          f'is configured')
-    parameters.load(nodes, str(path))
-    return PipelineConfig.from_ros_params(nodes, str(path))
+    entries = parameters.read_files([path])
+    if not entries:
+        raise ConfigError(f'{path}: configures no node (an empty file)')
+    loaded = parameters.load(entries, namespace=namespace)
+    return parameters.pipeline_config(loaded)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,8 +78,8 @@ def run(args: argparse.Namespace) -> int:
             tmp.write_text(text)
         print(f'wrote {args.write}')
         return 0
-    check(args.check)
-    changed = _differences(read_ros_yaml(args.check))
+    check(args.check, args.namespace)
+    changed = _differences(parameters.load_files([args.check], namespace=args.namespace))
     print(f'{args.check}: valid' + (f'; differs from the defaults in {len(changed)} '
                                      f'parameter(s):' if changed else '; all defaults'))
     for line in changed:
@@ -83,11 +87,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _differences(nodes) -> list[str]:
+def _differences(loaded) -> list[str]:
     default = parameters.defaults()
     out = []
-    for node, params in nodes.items():
-        for name, value in params.items():
-            if node in default and default[node].get(name) != value:
+    for node, params in loaded.items():
+        for name, value in params.values().items():
+            if default[node].get(name) != value:
                 out.append(f'{node}: {name} = {value!r} (default {default[node].get(name)!r})')
     return out

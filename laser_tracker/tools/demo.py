@@ -10,62 +10,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 from pathlib import Path
 
-from laser_tracker.errors import InputFileError, LaserTrackerError
+from laser_tracker.errors import LaserTrackerError
 from laser_tracker.tools.atomic import write_json
+from laser_tracker.tools.bag import has_ground_truth, resolve_bag
 
 log = logging.getLogger(__name__)
-
-PACKAGE = 'laser_tracker'
-
-
-def bag_folders() -> list[Path]:
-    """Where bundled recordings may live, most specific first."""
-    folders = [Path(__file__).resolve().parents[2] / 'bags']  # source tree / editable install
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        folders.append(Path(get_package_share_directory(PACKAGE)) / 'bags')
-    except Exception:  # ament_index_python absent, or the package not in an ament index
-        pass
-    folders.append(Path(sys.prefix) / 'share' / PACKAGE / 'bags')  # pip install
-    unique = []
-    for f in folders:
-        if f not in unique:
-            unique.append(f)
-    return unique
-
-
-def bundled_bags() -> list[str]:
-    names = set()
-    for folder in bag_folders():
-        if folder.is_dir():
-            names.update(p.name for p in folder.iterdir() if p.is_dir() or p.suffix == '.bag')
-    return sorted(names)
-
-
-def resolve_bag(name: str | Path) -> Path:
-    """A recording path as given if it exists, else a bundled recording of that name."""
-    path = Path(name)
-    if path.exists():
-        return path
-    for folder in bag_folders():
-        candidate = folder / path.name
-        if candidate.exists():
-            return candidate
-    known = bundled_bags()
-    hint = f'bundled: {", ".join(known)}' if known else \
-        'no bundled recordings found (generate them with `make bags`)'
-    raise InputFileError(name, f'no such recording; {hint}')
-
-
-def has_ground_truth(bag: Path) -> bool:
-    from laser_tracker.tools.bag import GROUND_TRUTH_TOPIC, PLATFORM_TRUTH_TOPIC, topics
-
-    found = topics(bag)
-    return GROUND_TRUTH_TOPIC in found and PLATFORM_TRUTH_TOPIC in found
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bag', metavar='BAG', help='a recording, or a bundled recording name')

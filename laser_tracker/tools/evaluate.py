@@ -184,7 +184,7 @@ class Evaluation:
 def evaluate_replay(folder: str | Path, bag: str | Path,
                     config: EvaluationConfig = EvaluationConfig()) -> Evaluation:
     """Score a replay folder against a bag's ground truth (a path or a bundled name)."""
-    from laser_tracker.tools.demo import resolve_bag
+    from laser_tracker.tools.bag import resolve_bag
 
     replay = read_replay(folder)
     bag = resolve_bag(bag)

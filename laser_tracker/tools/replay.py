@@ -1,20 +1,31 @@
 """``laser-tracker replay BAG``: ego-motion, detection and tracking over a whole recording.
 
 Runs :class:`laser_tracker.core.pipeline.Pipeline` on the scans and odometry of a rosbag2
-folder or a ROS 1 bag in receive order, as fast as the machine allows (progress bar on
-stderr), and writes into ``--out DIR``:
+folder or a ROS 1 bag (or a bundled recording's name) in receive order, as fast as the
+machine allows (progress bar on stderr), exactly as the node graph would: scans wait for
+their odometry by the recording's receive times (``odom_wait``), every stage applies its own
+stream rules. It writes into ``--out DIR``:
 
 * ``ego_motion.csv``: ``stamp,x,y,theta``, the scanner pose in the odometry frame per scan;
-* ``tracks.csv``: ``stamp,track_id,x,y,vx,vy,weight,confirmed``, one row per hypothesis per
-  scan, positions and velocities in the odometry frame (``confirmed`` is 0/1);
-* ``summary.json``: scans, scans skipped with their reasons, hypotheses created, confirmed
-  tracks, ego-motion source counts, resets, timing, the configuration used;
+* ``tracks.csv``: ``stamp,track_id,x,y,vx,vy,weight,confirmed,kind,moving``, one row per
+  hypothesis per scan, positions and velocities in the odometry frame (``confirmed`` and
+  ``moving`` are 0/1);
+* ``summary.json``: scans, scans skipped with their reasons, every stage's counted events,
+  hypotheses created, confirmed tracks, ego-motion sources, the scanner mount used, timing,
+  the configuration used;
 * ``tracks.png`` (paper Fig. 10) and, with ``--figure-scan K``, ``scan_K.png`` (Fig. 5 / 7).
 
+Configuration: ``--config FILE`` (repeatable, later files win) is read by the package's one
+loader (``laser_tracker.parameters``), as the nodes read it: every node parameter that shapes
+the result is honoured (``odom_wait`` included), and an unknown node or parameter, or a bad
+value, is a one-line error. The scanner mount (base -> scanner) comes from the recording's
+``/tf_static`` / ``/tf`` when it has them (said so on stderr); a recording whose scan frame
+differs from its odometry's child frame with no known mount gets a warning.
+
 A recording without the odometry topic runs on scan matching alone. Bad input never stops
-the replay: undecodable or malformed scans are skipped and counted; time going backwards
-resets the pipeline (logged, counted); a damaged recording ends the replay at the damage with
-the outputs written and the reason in the summary.
+the replay: malformed scans and odometry are skipped and counted (one line per reason at the
+end, no floods); a damaged recording ends the replay at the damage with the outputs written
+and the reason in the summary.
 
 ``replay_bag`` is the API the ``evaluate`` and ``demo`` commands use.
 """
@@ -22,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import logging
 import math
 import sys
@@ -32,26 +44,30 @@ from pathlib import Path
 
 import numpy as np
 
+from laser_tracker import parameters
 from laser_tracker.conversions import odometry_from_msg, scan_from_msg
-from laser_tracker.core.sync import OdometryWait
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools.atomic import atomic_path, write_json
+from laser_tracker.tools.bag import resolve_bag
 
 log = logging.getLogger(__name__)
 
 EGO_HEADER = 'stamp,x,y,theta\n'
-TRACKS_HEADER = 'stamp,track_id,x,y,vx,vy,weight,confirmed\n'
+TRACKS_HEADER = 'stamp,track_id,x,y,vx,vy,weight,confirmed,kind,moving\n'
 TRACKS_FIGURE = 'tracks.png'
-ODOM_WAIT = 1.0   # s of recording a scan waits for odometry stamped at or after it
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('bag', metavar='BAG', help='a rosbag2 folder or a ROS 1 .bag file')
-    parser.add_argument('--config', metavar='YAML',
-                        help='ROS parameter file (default: the package defaults, as in '
-                        'config/laser_tracker.yaml)')
+    parser.add_argument('bag', metavar='BAG', help='a rosbag2 folder, a ROS 1 .bag file, or '
+                        'the name of a bundled recording')
+    parser.add_argument('--config', metavar='YAML', action='append', default=[],
+                        help='ROS parameter file (repeatable; default: the package defaults, '
+                        'as in config/laser_tracker.yaml)')
+    parser.add_argument('--namespace', metavar='NS',
+                        help='namespace the nodes would run in, for parameter files with '
+                        'namespaced keys (default: any)')
     parser.add_argument('--out', metavar='DIR', help='output folder (default out/<bag name>)')
     parser.add_argument('--scan-topic', default='/scan', help='LaserScan topic (default /scan)')
     parser.add_argument('--odom-topic', default='/odom',
@@ -64,19 +80,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
-    bag = Path(args.bag)
+    bag = resolve_bag(args.bag)
     out = Path(args.out) if args.out else Path('out') / bag.name.removesuffix('.bag')
-    config = PipelineConfig.load(args.config) if args.config else None
-    summary = replay_bag(bag, config=config, out_dir=out, scan_topic=args.scan_topic,
+    node_params = parameters.load_files(args.config, namespace=args.namespace)
+    summary = replay_bag(bag, config=node_params, out_dir=out, scan_topic=args.scan_topic,
                          odom_topic=args.odom_topic, progress=not args.no_progress,
                          figure_scan=args.figure_scan)
     skipped = sum(summary['scans_skipped'].values())
     print(f'{summary["scans"]} scans replayed ({skipped} skipped) in '
-          f'{summary["timing"]["wall_s"]:.2f} s = {summary["timing"]["scans_per_s"]:.0f} '
+          f'{summary["timing"]["wall_s"]:.2f} s = {summary["timing"]["scans_per_s"] or 0:.0f} '
           f'scans/s; {summary["hypotheses_created"]} hypotheses created, '
           f'{summary["confirmed_tracks"]} confirmed tracks')
     for reason, count in summary['scans_skipped'].items():
         print(f'  skipped {count}: {reason}')
+    for stage, events in summary['events'].items():
+        for reason, count in sorted(events.items()):
+            print(f'  {stage}: {reason}: {count}')
     print(f'outputs in {out}: ' + ', '.join(summary['files']))
     return 0
 
@@ -85,23 +104,36 @@ def _fmt(v: float) -> str:
     return f'{v:.6f}' if math.isfinite(v) else 'nan'
 
 
-def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | None = None,
+def _configuration(config) -> tuple[PipelineConfig, float, dict]:
+    """(pipeline config, odom_wait, {node: {name: value}}) from what ``replay_bag`` accepts:
+    None (defaults), a PipelineConfig, loaded node parameters, or a parameter file path."""
+    if config is None or isinstance(config, (str, Path)):
+        config = parameters.load_files([config] if config is not None else [])
+    if isinstance(config, PipelineConfig):
+        wait = parameters.EgoMotionNodeConfig().odom_wait
+        return config, wait, config.to_ros_params()
+    pipeline = parameters.pipeline_config(config)
+    wait = config['ego_motion'].sections[''].odom_wait
+    return pipeline, wait, {n: config[n].values() for n in parameters.REPLAY_NODES}
+
+
+def replay_bag(bag_path, config=None, out_dir: Path | None = None,
                scan_topic: str = '/scan', odom_topic: str = '/odom', progress: bool = True,
                figure_scan: int | None = None,
                on_confirmed: Callable[[float, int, float, float, float, float], None] | None
                = None) -> dict:
     """Replay a recording; return the summary dict (also written as ``summary.json``).
 
-    ``config`` may also be a path to a ROS parameter file. Without ``out_dir`` nothing is
-    written (the summary is still returned). ``on_confirmed(stamp, track_id, x, y, vx, vy)``
-    is called once per track, when it is first confirmed (odometry frame).
+    ``config``: None (the defaults), a parameter file path, a PipelineConfig, or the result
+    of ``parameters.load``. Without ``out_dir`` nothing is written (the summary is still
+    returned). ``on_confirmed(stamp, track_id, x, y, vx, vy)`` is called once per track, when
+    it is first confirmed (odometry frame).
     """
     from laser_tracker.tools.bag import iter_messages, topics
+    from laser_tracker.tools.mount import recording_mount
 
-    bag_path = Path(bag_path)
-    if isinstance(config, (str, Path)):
-        config = PipelineConfig.load(config)
-    config = config or PipelineConfig()
+    bag_path = resolve_bag(bag_path)
+    config, odom_wait, node_values = _configuration(config)
     info = topics(bag_path)
     if scan_topic not in info:
         raise InputFileError(bag_path, f'no {scan_topic} topic; topics: '
@@ -112,19 +144,26 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
         wanted.append(odom_topic)
     else:
         log.info('%s: no %s topic: ego-motion from scan matching alone', bag_path, odom_topic)
+    mount = recording_mount(bag_path, scan_topic, odom_topic if has_odometry else None,
+                            config.ego_motion)
+    if mount.from_recording:
+        config = dataclasses.replace(config, ego_motion=dataclasses.replace(
+            config.ego_motion, mount_x=mount.x, mount_y=mount.y, mount_yaw=mount.yaw))
+    if mount.message:
+        print(f'{bag_path.name}: {mount.message}', file=sys.stderr)
     n_scans = int(info[scan_topic][1])
 
-    pipeline = Pipeline(config, profile=True)
+    pipeline = Pipeline(config, odom_wait=odom_wait, profile=True)
     skipped: Counter = Counter()
     confirmed_ids: set[int] = set()
     figure_rows: list[tuple] = []       # confirmed rows for Fig. 10
-    background = None                   # the first scan's points (odometry frame), Fig. 10
     scanner: list[tuple] = []
     files: list[str] = []
     odometry_messages = 0
     skipped_odometry: Counter = Counter()
     damage = None
     scan_index = -1
+    state = {'scans_done': 0, 'background': None}
     wall0 = time.perf_counter()
 
     with contextlib.ExitStack() as stack:
@@ -141,83 +180,70 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
             ego_f = trk_f = None
         bar = _progress(n_scans, progress, bag_path.name)
         stack.callback(bar.close)
-        state = {'scans_done': 0, 'background': None}
 
-        def process(index: int, scan) -> None:
-            want = figure_scan is not None and index == figure_scan
-            result = pipeline.step(scan, want_grids=want)
-            if result.skipped:
-                skipped[result.skipped] += 1
-                return
-            state['scans_done'] += 1
-            if state['background'] is None:
-                from laser_tracker.core.geometry import transform_points
-                state['background'] = transform_points(result.pose, scan.points())
-            _write_scan(result, ego_f, trk_f)
-            h = result.hypotheses
-            scanner.append(tuple(result.pose))
-            for j in np.flatnonzero(h.confirmed):
-                figure_rows.append((result.stamp, int(h.track_id[j]), *h.position[j],
-                                    *h.velocity[j]))
-            for j in result.newly_confirmed:
-                tid = int(h.track_id[j])
-                if tid in confirmed_ids:
+        def process(results) -> None:
+            for result in results:
+                if result.skipped:
+                    skipped[result.skipped] += 1
                     continue
-                confirmed_ids.add(tid)
-                if on_confirmed is not None:
-                    on_confirmed(float(result.stamp), tid, float(h.position[j, 0]),
-                                 float(h.position[j, 1]), float(h.velocity[j, 0]),
-                                 float(h.velocity[j, 1]))
-            if want and out_dir is not None:
-                from laser_tracker.tools.figures import scan_figure
-                name = f'scan_{figure_scan}.png'
-                scan_figure(result, config.grid.resolution, out_dir / name,
-                            f'{bag_path.name}: scan {figure_scan} at t = {result.stamp:.3f} s')
-                files.append(name)
-
-        # A scan waits (in receive order) until odometry stamped at or after it has arrived,
-        # or ODOM_WAIT seconds of recording have passed (core/sync.py, as the node does).
-        waiting: OdometryWait = OdometryWait(ODOM_WAIT)
-
-        def process_all(items) -> None:
-            for index, scan in items:
-                process(index, scan)
+                state['scans_done'] += 1
+                if state['background'] is None:
+                    from laser_tracker.core.geometry import transform_points
+                    state['background'] = transform_points(result.pose, result.scan.points())
+                tracks = pipeline.tracker.tracks()
+                _write_scan(result, tracks, ego_f, trk_f)
+                scanner.append(tuple(result.pose))
+                h = result.hypotheses
+                for j in np.flatnonzero(h.confirmed):
+                    figure_rows.append((result.stamp, int(h.track_id[j]), *h.position[j],
+                                        *h.velocity[j]))
+                for j in result.newly_confirmed:
+                    tid = int(h.track_id[j])
+                    if tid in confirmed_ids:
+                        continue
+                    confirmed_ids.add(tid)
+                    if on_confirmed is not None:
+                        on_confirmed(float(result.stamp), tid, float(h.position[j, 0]),
+                                     float(h.position[j, 1]), float(h.velocity[j, 0]),
+                                     float(h.velocity[j, 1]))
+                if result.detection.grid is not None and out_dir is not None:
+                    from laser_tracker.tools.figures import scan_figure
+                    name = f'scan_{figure_scan}.png'
+                    scan_figure(result, config.grid.resolution, out_dir / name,
+                                f'{bag_path.name}: scan {figure_scan} at t = '
+                                f'{result.stamp:.3f} s')
+                    files.append(name)
 
         try:
             for topic, t_ns, msg in iter_messages(bag_path, wanted):
+                arrival = t_ns * 1e-9
                 if topic != scan_topic:
                     try:
                         odo = odometry_from_msg(msg)
-                        pose = (odo.x, odo.y, odo.theta)
-                        if not all(math.isfinite(v) for v in (odo.stamp, *pose)):
-                            raise ValueError('non-finite odometry')
                     except Exception as exc:   # noqa: BLE001 - any malformed message
-                        log.warning('odometry message skipped: %s', exc)
-                        skipped_odometry[str(exc)[:80]] += 1
+                        skipped_odometry[f'malformed: {type(exc).__name__}'] += 1
                         continue
-                    pipeline.add_odometry(odo.stamp, pose)
                     odometry_messages += 1
-                    process_all(waiting.add_odometry(t_ns * 1e-9, odo.stamp))
+                    process(pipeline.add_odometry(odo.stamp, odo.pose, arrival))
                     continue
                 scan_index += 1
                 bar.update(1)
-                process_all(waiting.release(t_ns * 1e-9))
+                process(pipeline.poll(arrival))
                 try:
                     scan = scan_from_msg(msg)
                 except (ScanError, ValueError, TypeError, AttributeError) as exc:
-                    reason = f'malformed scan: {exc}'
-                    log.warning('scan %d skipped: %s', scan_index, reason)
-                    skipped[_reason_key(reason)] += 1
+                    reason = f'malformed scan: {_generic(str(exc))}'
+                    if not skipped[reason]:
+                        log.warning('scan %d skipped: %s', scan_index, exc)
+                    skipped[reason] += 1
                     continue
-                if has_odometry:
-                    process_all(waiting.add_scan(t_ns * 1e-9, scan.stamp, (scan_index, scan)))
-                else:
-                    process(scan_index, scan)
-            process_all(waiting.flush())
+                want = figure_scan is not None and scan_index == figure_scan
+                process(pipeline.add_scan(scan, arrival, want))
+            process(pipeline.flush())
         except InputFileError as exc:
             damage = str(exc)
             log.error('replay stopped early: %s', damage)
-            process_all(waiting.flush())
+            process(pipeline.flush())
         wall = time.perf_counter() - wall0
         scans_done, background = state['scans_done'], state['background']
 
@@ -233,18 +259,21 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
         'scans_skipped': dict(skipped),
         'odometry_messages': odometry_messages,
         'odometry_skipped': dict(skipped_odometry),
-        'pipeline_events': {k: v for k, v in pipeline.stats.items() if k != 'scans'},
+        'events': pipeline.events(),
         'hypotheses_created': int(stats['created']),
         'confirmed_tracks': len(confirmed_ids),
         'tracker': {k: int(v) for k, v in stats.items()},
         'ego_motion_sources': dict(pipeline.sources),
+        'scanner_mount': {'x': config.ego_motion.mount_x, 'y': config.ego_motion.mount_y,
+                          'yaw': config.ego_motion.mount_yaw, 'source': mount.source},
+        'odom_wait': odom_wait,
         'timing': {
             'wall_s': wall,
             'scans_per_s': scans_done / wall if wall > 0 else None,
             'ms_per_scan': {s: 1e3 * pipeline.times[s] / max(scans_done, 1) for s in STAGES},
         },
         'damaged': damage,
-        'config': config.to_ros_params(),
+        'config': node_values,
     }
     if out_dir is not None:
         files[:0] = ['ego_motion.csv', 'tracks.csv']
@@ -262,29 +291,32 @@ def replay_bag(bag_path, config: PipelineConfig | None = None, out_dir: Path | N
     return summary
 
 
-def _write_scan(result, ego_f, trk_f) -> None:
+def _write_scan(result, tracks, ego_f, trk_f) -> None:
     if ego_f is None:
         return
     x, y, t = result.pose
     stamp = _fmt(result.stamp)
     ego_f.write(f'{stamp},{x:.6f},{y:.6f},{t:.6f}\n')
-    h = result.hypotheses
-    if len(h):
-        lines = [f'{stamp},{int(i)},{p[0]:.4f},{p[1]:.4f},{v[0]:.4f},{v[1]:.4f},{w:.2f},{int(c)}\n'
-                 for i, p, v, w, c in zip(h.track_id, h.position, h.velocity, h.weight,
-                                          h.confirmed)]
-        trk_f.writelines(lines)
+    if len(tracks):
+        trk_f.writelines(
+            f'{stamp},{int(i)},{p[0]:.4f},{p[1]:.4f},{v[0]:.4f},{v[1]:.4f},{w:.2f},{int(c)},'
+            f'{k},{int(m)}\n'
+            for i, p, v, w, c, k, m in zip(tracks.track_id, tracks.position, tracks.velocity,
+                                           tracks.weight, tracks.confirmed, tracks.kind,
+                                           tracks.moving))
 
 
-def _reason_key(reason: str) -> str:
+def _generic(reason: str) -> str:
     """Group reasons that differ only in numbers (beam counts, stamps)."""
-    return reason if len(reason) < 120 else reason[:117] + '...'
+    import re
+    text = re.sub(r'-?\d+(\.\d+)?(e-?\d+)?', '#', reason)
+    return text if len(text) < 120 else text[:117] + '...'
 
 
 def _progress(total: int, enabled: bool, name: str):
     try:
         from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a dependency
+    except ImportError:  # tqdm is in the tools extra
         enabled = False
     if not enabled:
         class _Null:
@@ -296,5 +328,3 @@ def _progress(total: int, enabled: bool, name: str):
         return _Null()
     return tqdm(total=total, unit='scan', file=sys.stderr, desc=name, leave=False,
                 mininterval=0.2)
-
-

@@ -1,5 +1,5 @@
 """Scans wait for the odometry that covers them, but never for an absent odometry stream."""
-from laser_tracker.core.sync import OdometryWait
+from laser_tracker.core.stream import OdometryWait
 
 
 def test_scan_is_held_until_odometry_stamped_after_it_arrives():

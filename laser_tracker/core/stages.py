@@ -1,0 +1,475 @@
+"""The pipeline's stages: each owns its input stream (``core.stream``) and its algorithm.
+
+=============  ==========================================  =================================
+stage          input -> output                             algorithm (paper section)
+=============  ==========================================  =================================
+``EgoMotion``  scans + odometry -> :class:`StampedPose`     ``egomotion`` (Sec. 4)
+``Detector``   scan + its pose -> :class:`Detection`        ``grid``, ``difference``,
+                                                           ``blobs`` (Sec. 5-6)
+``Tracker``    blobs -> ``hypotheses.FrameResult``          ``hypotheses``, ``kalman``
+                                                           (Sec. 7-9)
+``Head``       tracks + pose -> ``head.HeadCommand``        ``head`` (Sec. 10.3)
+=============  ==========================================  =================================
+
+Each has ``reset()``, ``update(...)`` (None when the item is skipped) and ``reconfigure(...)``
+(new parameters applied from the next item; whatever the change makes stale is rebuilt), and
+answers its stream's misbehaviour itself (``core.stream``: time going backwards restarts the
+stage, a duplicate stamp is skipped, a gap drops what it makes stale, an invalid stamp is
+skipped), counting every case in its ``events`` (an ``EventLog``). Offline replay
+(``core.pipeline.Pipeline``) and the ROS nodes (convert -> stage -> convert) therefore
+behave the same.
+
+The ego-motion stage also holds scans until the odometry that covers them has arrived
+(``stream.OdometryWait``; ``add_scan`` / ``add_odometry`` / ``poll`` with arrival times),
+and says when its pose chain restarted (``StampedPose.quality.restarted``): downstream
+stages then forget their odometry-frame history, as positions before and after are
+unrelated.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import re
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from laser_tracker.core.blobs import BlobConfig, Blobs, segment
+from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, changed_cells,
+                                           deep_free, difference_map, not_occupied_before,
+                                           pose_quality, pose_trusted, relative_motion)
+from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, \
+    EgoMotionEstimator
+from laser_tracker.core.grid import GridBuilder, GridConfig, transform_grid
+from laser_tracker.core.head import HeadCommand, HeadConfig, HeadPointer
+from laser_tracker.core.hypotheses import FrameResult, HypothesisConfig, HypothesisTracker
+from laser_tracker.core.kalman import KalmanConfig
+from laser_tracker.core.scan import Scan
+from laser_tracker.core.stream import (BACKWARDS, DUPLICATE, FIRST, GAP, INVALID, EventLog,
+                                       OdometryWait, StreamRules)
+
+log = logging.getLogger(__name__)
+
+
+# ------------------------------------------------------------------------------ ego-motion
+
+
+@dataclass
+class StampedPose:
+    """The scanner pose of one scan (the ego-motion stage's output; the ``ego_motion`` topic).
+
+    ``pose``: scanner pose (x, y, theta) in the odometry frame; ``motion``: motion since the
+    previous posed scan in the previous scanner frame, over ``dt`` seconds, with covariance
+    ``motion_covariance``; ``pose_covariance``: the pose's covariance in the odometry frame
+    (motion covariances accumulated); ``quality``: what the detection gate reads.
+    ``stamp_ns``: the scan's exact stamp when known (messages are restamped with it).
+    """
+
+    stamp: float
+    pose: np.ndarray
+    motion: np.ndarray
+    motion_covariance: np.ndarray
+    pose_covariance: np.ndarray
+    quality: PoseQuality
+    source: str = ''
+    reason: str = ''
+    dt: float = 0.0
+    frame_id: str = 'odom'
+    child_frame_id: str = 'laser'
+    stamp_ns: int | None = None
+    estimate: EgoMotionEstimate | None = field(default=None, repr=False)
+
+
+class EgoMotion:
+    """Stage: scans and odometry -> the scanner pose of each scan (paper Sec. 4).
+
+    ``update(scan)`` estimates at once; ``add_scan(scan, arrival)`` first lets the scan wait
+    (at most ``odom_wait`` seconds of the arrival clock) for odometry stamped at or after it,
+    and returns every ``(scan, pose)`` that became ready; ``add_odometry`` and ``poll`` may
+    release waiting scans too. A pose is None for a scan that was skipped or got no pose.
+    Stream rules: an invalid or duplicate scan stamp is skipped; time going backwards
+    restarts the estimator (the next pose says ``restarted``); non-finite odometry is skipped.
+    """
+
+    def __init__(self, config: EgoMotionConfig | None = None, odom_wait: float = 0.0,
+                 frame_id: str = 'odom'):
+        self.config = config or EgoMotionConfig()
+        self.frame_id = frame_id
+        self.events = EventLog(log, 'ego-motion: ')
+        self.estimator = EgoMotionEstimator(self.config)
+        self.rules = StreamRules()
+        self.wait: OdometryWait = OdometryWait(odom_wait)
+        self.sources: dict[str, int] = {}
+        self._pose_cov = np.zeros((3, 3))
+        self._restart_pending = False
+        self.skipped: str | None = None     # why the last update returned None
+
+    # ---------------------------------------------------------------- stream
+    def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list:
+        """Feed one odometry sample (platform pose in the odometry frame)."""
+        pose = np.asarray(pose, dtype=float).reshape(-1)
+        if pose.size != 3 or not (np.isfinite(pose).all() and math.isfinite(stamp)):
+            self.events.note('odometry skipped', f'not a finite planar pose: {stamp!r}, '
+                             f'{pose.tolist()!r}')
+            return []
+        self.estimator.add_odometry(float(stamp), pose)
+        if arrival is None:
+            return []
+        return self._estimate_all(self.wait.add_odometry(arrival, float(stamp)))
+
+    def add_scan(self, scan: Scan, arrival: float | None = None, tag=None) -> list:
+        """Queue ``scan`` behind its odometry; returns ``(scan, tag, pose or None)`` of every
+        scan that is ready (``tag`` travels with the scan, for the caller)."""
+        if arrival is None or self.wait.max_wait <= 0.0:
+            return [(scan, tag, self.update(scan))]
+        return self._estimate_all(self.wait.add_scan(arrival, scan.stamp, (scan, tag)))
+
+    def poll(self, now: float) -> list:
+        """Scans whose wait is over at ``now`` (the arrival clock)."""
+        return self._estimate_all(self.wait.release(now))
+
+    def flush(self) -> list:
+        """Every waiting scan (end of a recording)."""
+        return self._estimate_all(self.wait.flush())
+
+    def _estimate_all(self, items) -> list:
+        return [(scan, tag, self.update(scan)) for scan, tag in items]
+
+    def reset(self, reason: str = '') -> None:
+        """Restart the pose chain (odometry history is kept)."""
+        if reason:
+            self.events.note('restart', reason)
+        self.estimator.reset(reason or 'reset requested')
+        self.rules.reset()
+        self._pose_cov = np.zeros((3, 3))
+        self._restart_pending = True
+
+    def reconfigure(self, config: EgoMotionConfig, odom_wait: float | None = None) -> None:
+        """New parameters from the next scan: the estimator is rebuilt (its map and pose chain
+        restart, which downstream stages see as a restart), odometry history is kept."""
+        if odom_wait is not None:
+            self.wait.max_wait = float(odom_wait)
+        if config == self.config:
+            return
+        odometry = self.estimator.odometry
+        self.config = config
+        self.estimator = EgoMotionEstimator(config)
+        self.estimator.odometry = odometry
+        odometry.config = config
+        self.reset('parameters changed')
+
+    # ---------------------------------------------------------------- one scan
+    def update(self, scan: Scan) -> StampedPose | None:
+        """The pose of ``scan``, or None (``skipped`` says why)."""
+        self.skipped = None
+        verdict = self.rules.classify(scan.stamp)
+        if verdict in (INVALID, DUPLICATE):
+            self.skipped = f'{verdict} stamp'
+            self.events.note(f'scan skipped: {verdict} stamp', f't={scan.stamp!r}')
+            return None
+        if verdict == BACKWARDS:
+            self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
+        est = self.estimator.update(scan)
+        self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
+        pose = np.asarray(est.pose, dtype=float)
+        if not est.ok or not np.isfinite(pose).all():
+            self.skipped = 'no pose: ' + _generic(est.reason)
+            self.events.note('no pose', _generic(est.reason))
+            return None
+        self.rules.accept(scan.stamp)
+        quality = pose_quality(est)
+        if self._restart_pending:
+            quality = PoseQuality(quality.variance, quality.unmatched, True)
+            self._restart_pending = False
+        motion = np.asarray(est.motion, dtype=float)
+        cov = np.asarray(est.covariance, dtype=float)
+        if quality.restarted or not np.isfinite(cov).all():
+            self._pose_cov = np.zeros((3, 3)) if quality.restarted else self._pose_cov
+        else:
+            c, s = math.cos(pose[2] - motion[2]), math.sin(pose[2] - motion[2])
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            self._pose_cov = self._pose_cov + rot @ cov @ rot.T
+        return StampedPose(stamp=float(scan.stamp), pose=pose, motion=motion,
+                           motion_covariance=cov, pose_covariance=self._pose_cov.copy(),
+                           quality=quality, source=str(est.source), reason=str(est.reason),
+                           dt=float(est.dt), frame_id=self.frame_id,
+                           child_frame_id=scan.frame_id, stamp_ns=scan.stamp_ns,
+                           estimate=est)
+
+
+# ------------------------------------------------------------------------------- detection
+
+
+@dataclass
+class Detection:
+    """Detection output for one scan; grids only when requested."""
+
+    blobs: Blobs
+    changed: int                       # cells in the difference map
+    grid: np.ndarray | None = None
+    previous: np.ndarray | None = None     # previous grid in the current scanner frame
+    difference: np.ndarray | None = None   # Equation 1 (bool)
+    changed_cells: np.ndarray | None = None  # flat indices of the cells that made the blobs
+    gated: bool = False                # pose not trusted: no changes reported
+
+
+class Detector:
+    """Stage: a scan and its pose -> blobs (paper Sec. 5-6: grid, Eq. 1, blobs).
+
+    Keeps the previous grids (in their own frames, with their poses). Stream rules: an
+    invalid or duplicate stamp is skipped; time going backwards, a gap longer than
+    ``difference.max_gap`` or a restarted pose chain drops the grid history (the next scan
+    is a first scan).
+    """
+
+    def __init__(self, grid: GridConfig | None = None,
+                 difference: DifferenceConfig | None = None,
+                 blobs: BlobConfig | None = None, frame_id: str = 'odom',
+                 times: dict | None = None):
+        self.times = times   # stage -> seconds, accumulated when given (profiling)
+        self.events = EventLog(log, 'detection: ')
+        self.frame_id = frame_id
+        self.grid_config = grid or GridConfig()
+        self.difference_config = difference or DifferenceConfig()
+        self.blob_config = blobs or BlobConfig()
+        self.rules = StreamRules(self.difference_config.max_gap)
+        self.skipped: str | None = None
+        self._build()
+
+    def _build(self) -> None:
+        self.builder = GridBuilder(self.grid_config, keep=self.difference_config.memory + 2)
+        self.reset()
+
+    def reset(self) -> None:
+        self.previous = None
+        self.previous_pose: np.ndarray | None = None
+        self.earlier: deque = deque(maxlen=self.difference_config.memory + 1)
+        self.rules.reset()
+
+    def reconfigure(self, grid: GridConfig, difference: DifferenceConfig,
+                    blobs: BlobConfig) -> None:
+        """New parameters from the next scan; a new grid geometry or memory depth drops the
+        grid history."""
+        rebuild = (grid != self.grid_config
+                   or difference.memory != self.difference_config.memory)
+        self.grid_config, self.difference_config, self.blob_config = grid, difference, blobs
+        self.rules.max_gap = difference.max_gap
+        if rebuild:
+            self.events.note('history dropped', 'grid parameters changed', logging.INFO)
+            self._build()
+
+    def update(self, scan: Scan, pose: StampedPose,
+               want_grids: bool = False) -> Detection | None:
+        """Grid of ``scan``, Eq. 1 against the previous grid, blobs (odometry frame).
+
+        When ``difference.pose_gate`` does not trust the pose (``pose.quality``), the grid is
+        built and kept as history as usual but no change is reported.
+        """
+        self.skipped = None
+        verdict = self.rules.classify(scan.stamp)
+        if verdict in (INVALID, DUPLICATE):
+            self.skipped = f'{verdict} stamp'
+            self.events.note(f'scan skipped: {verdict} stamp', f't={scan.stamp!r}')
+            return None
+        if verdict == BACKWARDS:
+            self.events.note('restart', 'time went backwards')
+            self.reset()
+        elif verdict == GAP:
+            self.events.note('history dropped', f'gap of {scan.stamp - self.rules.last:.2f} s '
+                             f'> difference.max_gap')
+            self.reset()
+        elif pose.quality.restarted and verdict != FIRST:
+            self.events.note('history dropped', 'the ego-motion pose chain restarted')
+            self.reset()
+        self.rules.accept(scan.stamp)
+        det = self._detect(scan, np.asarray(pose.pose, dtype=float), want_grids,
+                           pose.quality)
+        det.blobs.frame_id = pose.frame_id or self.frame_id
+        det.blobs.stamp_ns = scan.stamp_ns
+        det.blobs.restarted = bool(pose.quality.restarted)
+        if det.gated:
+            self.events.note('gated', 'ego-motion pose not trusted: no blobs', logging.DEBUG)
+        return det
+
+    def _detect(self, scan: Scan, pose: np.ndarray, want_grids: bool,
+                quality: PoseQuality) -> Detection:
+        res = self.grid_config.resolution
+        cells = self.builder.cells
+        times = self.times
+        t0 = time.perf_counter() if times is not None else 0.0
+        frame = self.builder.build(scan)
+        previous, prev_pose = self.previous, self.previous_pose
+        if previous is not None and self.difference_config.memory:
+            self.earlier.append((previous.index, prev_pose))
+        self.previous, self.previous_pose = frame, pose
+        gated = not pose_trusted(quality, self.difference_config)
+        if previous is None or gated:
+            det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
+                            gated=gated and previous is not None)
+            if want_grids:
+                det.grid = frame.grid.copy()
+                if previous is not None:
+                    det.previous = transform_grid(previous.grid,
+                                                  relative_motion(prev_pose, pose), res)
+                    det.difference = difference_map(det.grid, det.previous)  # not reported
+            if times is not None:
+                times['grid'] += time.perf_counter() - t0
+            return det
+        motion = relative_motion(prev_pose, pose)
+        t1 = time.perf_counter() if times is not None else 0.0
+        changed = changed_cells(frame.ij, previous.padded, motion, res,
+                                self.difference_config)
+        if len(self.earlier) > 1 and changed.any():
+            # The grid just appended is `previous` itself; the memory is the ones before it.
+            earlier = list(self.earlier)[:-1]
+            changed[changed] = not_occupied_before(
+                frame.ij[changed], self.builder.stack, [e[0] for e in earlier],
+                [e[1] for e in earlier], pose, res)
+        if self.difference_config.motion_depth > 0 and changed.any():
+            changed[changed] = deep_free(frame.ij[changed], previous, motion, res, cells,
+                                         self.difference_config)
+        d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
+        t2 = time.perf_counter() if times is not None else 0.0
+        if d_cells.size:
+            blobs = segment(d_cells, cells, res, pose, scan.stamp, self.blob_config,
+                            frame.points)
+        else:
+            blobs = Blobs.empty(scan.stamp, pose, self.frame_id)
+        if times is not None:
+            t3 = time.perf_counter()
+            times['grid'] += t1 - t0
+            times['difference'] += t2 - t1
+            times['blobs'] += t3 - t2
+        det = Detection(blobs, int(d_cells.size))
+        if want_grids:
+            det.grid = frame.grid.copy()
+            det.previous = transform_grid(previous.grid, motion, res)
+            det.difference = difference_map(det.grid, det.previous)
+            det.changed_cells = d_cells.copy()
+        return det
+
+
+# -------------------------------------------------------------------------------- tracking
+
+
+class Tracker:
+    """Stage: blobs -> movement hypotheses (paper Sec. 7-9).
+
+    Stream rules: an invalid or duplicate stamp is skipped (a second publisher on the blobs
+    topic changes nothing); time going backwards, a gap longer than ``hypotheses.max_gap``
+    or blobs of a restarted pose chain start the hypotheses afresh (ids keep counting up).
+    """
+
+    def __init__(self, hypotheses: HypothesisConfig | None = None,
+                 kalman: KalmanConfig | None = None):
+        self.events = EventLog(log, 'tracking: ')
+        self.hypotheses = HypothesisTracker(hypotheses, kalman)
+        self.rules = StreamRules(self.hypotheses.config.max_gap)
+        self.last: FrameResult | None = None
+        self.skipped: str | None = None
+
+    @property
+    def config(self) -> HypothesisConfig:
+        return self.hypotheses.config
+
+    @property
+    def stats(self) -> dict:
+        return self.hypotheses.stats
+
+    def reset(self, reason: str = '') -> None:
+        if reason:
+            self.events.note('restart', reason)
+        self.hypotheses.reset()
+        self.rules.reset()
+
+    def reconfigure(self, hypotheses: HypothesisConfig, kalman: KalmanConfig) -> None:
+        """New parameters from the next frame; a new filter mode restarts the hypotheses
+        (their state vectors differ)."""
+        self.rules.max_gap = hypotheses.max_gap
+        if self.hypotheses.reconfigure(hypotheses, kalman):
+            self.reset('the Kalman filter mode changed')
+
+    def tracks(self):
+        """The hypotheses after the last update as ``hypotheses.Tracks``."""
+        stamp = self.last.stamp if self.last is not None else math.nan
+        return self.hypotheses.report(stamp)
+
+    def update(self, blobs: Blobs) -> FrameResult | None:
+        self.skipped = None
+        verdict = self.rules.classify(float(blobs.stamp))
+        if verdict in (INVALID, DUPLICATE):
+            self.skipped = f'{verdict} stamp'
+            self.events.note(f'blobs skipped: {verdict} stamp', f't={blobs.stamp!r}')
+            return None
+        if verdict == BACKWARDS:
+            self.reset(f'time went backwards ({self.rules.last:.3f} -> {blobs.stamp:.3f} s)')
+        elif verdict == GAP:
+            self.reset(f'gap of {blobs.stamp - self.rules.last:.2f} s > hypotheses.max_gap')
+        elif blobs.restarted and verdict != FIRST:
+            self.reset('the ego-motion pose chain restarted')
+        self.rules.accept(float(blobs.stamp))
+        self.last = self.hypotheses.update(blobs)
+        if self.last.bounded:
+            self.events.note('hypothesis bound reached', f't={blobs.stamp:.3f} s')
+        return self.last
+
+
+# ------------------------------------------------------------------------------ active head
+
+
+class Head:
+    """Stage: confirmed tracks and the platform pose -> a leading pan/tilt command (Sec. 10.3).
+
+    Stream rules: poses and tracks with invalid stamps are skipped; tracks are aimed at only
+    with a pose at most ``max_pose_age`` seconds from them; time going backwards (in either
+    stream) restarts the pointer (target choice and capture counts).
+    """
+
+    def __init__(self, config: HeadConfig | None = None, max_pose_age: float = 1.0):
+        self.events = EventLog(log, 'active head: ')
+        self.pointer = HeadPointer(config)
+        self.max_pose_age = float(max_pose_age)
+        self.pose: StampedPose | None = None
+        self.rules = StreamRules()
+
+    def reset(self, reason: str = '') -> None:
+        if reason:
+            self.events.note('restart', reason)
+        self.pointer = HeadPointer(self.pointer.config)
+        self.pose = None
+        self.rules.reset()
+
+    def reconfigure(self, config: HeadConfig, max_pose_age: float) -> None:
+        self.pointer.config = config
+        self.max_pose_age = float(max_pose_age)
+
+    def add_pose(self, pose: StampedPose) -> None:
+        if not (math.isfinite(pose.stamp) and np.isfinite(pose.pose).all()):
+            self.events.note('pose skipped', 'not finite')
+            return
+        if self.pose is not None and pose.stamp < self.pose.stamp:
+            self.reset('pose time went backwards')
+        self.pose = pose
+
+    def update(self, stamp: float, tracks) -> HeadCommand | None:
+        """``tracks``: (id, x, y, vx, vy, weight) rows of confirmed tracks, odometry frame."""
+        verdict = self.rules.classify(stamp)
+        if verdict in (INVALID, DUPLICATE):
+            self.events.note(f'tracks skipped: {verdict} stamp', f't={stamp!r}')
+            return None
+        if verdict == BACKWARDS:
+            self.reset('time went backwards')
+        self.rules.accept(stamp)
+        if self.pose is None or abs(stamp - self.pose.stamp) > self.max_pose_age:
+            self.events.note('not aiming', 'no ego-motion pose within max_pose_age of the '
+                             'tracks')
+            return None
+        return self.pointer.update(stamp, self.pose.pose, tracks)
+
+
+def _generic(reason: str) -> str:
+    """A reason without its numbers, so that counts group alike cases."""
+    return re.sub(r'-?\d+(\.\d+)?', '#', str(reason))[:100]
+

@@ -1,0 +1,188 @@
+"""What a stream of stamped messages may do, and how each stage answers it.
+
+Real streams misbehave: a bag replayed in a loop sends time backwards, a second publisher on
+a topic sends every message twice, a sensor pauses, odometry stops. Each stage of the
+pipeline (``core.stages``) owns one :class:`StreamRules` and answers these cases itself, so
+offline replay and the ROS nodes behave identically:
+
+* **backwards** (a stamp before the previous one): the stage restarts (its history belongs
+  to another pass through time);
+* **duplicate** (the previous stamp again): the item is skipped;
+* **gap** (more than ``max_gap`` seconds since the previous item): the stage forgets what a
+  gap makes stale (each stage says what);
+* **invalid** (a stamp that is not finite or is negative): the item is skipped.
+
+Everything unusual is counted and logged through an :class:`EventLog`: the first occurrence
+of a reason at once, then at the 10th, 100th, ... (no floods), and all counts for summaries.
+
+Also here: :class:`OdometryWait` (a scan waits for the odometry that covers it, paper Sec. 3:
+odometry arrives late and jittered) and :class:`StampPairer` (joins streams that carry the
+same stamps, e.g. a scan and its pose).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter, OrderedDict, deque
+from collections.abc import Callable, Iterable
+from typing import Generic, TypeVar
+
+T = TypeVar('T')
+
+FIRST, NEXT, DUPLICATE, BACKWARDS, GAP, INVALID = (
+    'first', 'next', 'duplicate', 'backwards', 'gap', 'invalid')
+
+
+class EventLog:
+    """Counts events by reason and logs them without flooding.
+
+    ``note(reason, detail)`` logs ``'<reason>: <detail>'`` the first time a reason occurs and
+    again at its 10th, 100th, 1000th ... occurrence (with the count); other occurrences go to
+    the debug log. ``counts`` holds every reason's count (for summary.json).
+    """
+
+    def __init__(self, logger: logging.Logger, prefix: str = ''):
+        self.logger = logger
+        self.prefix = prefix
+        self.counts: Counter = Counter()
+
+    def note(self, reason: str, detail: str = '', level: int = logging.WARNING) -> None:
+        self.counts[reason] += 1
+        n = self.counts[reason]
+        text = f'{self.prefix}{reason}' + (f': {detail}' if detail else '')
+        if n == 1 or (n >= 10 and math.log10(n).is_integer()):
+            self.logger.log(level, '%s%s', text, f' ({n} times so far)' if n > 1 else '')
+        else:
+            self.logger.debug('%s', text)
+
+    def lines(self) -> list[str]:
+        """One line per reason with its count (the end-of-run summary)."""
+        return [f'{self.prefix}{reason}: {n}' for reason, n in sorted(self.counts.items())]
+
+
+class StreamRules:
+    """Classifies each stamp of one stream against the previous accepted one."""
+
+    def __init__(self, max_gap: float = math.inf):
+        self.max_gap = float(max_gap)
+        self.last: float | None = None
+
+    def reset(self) -> None:
+        self.last = None
+
+    def classify(self, stamp: float) -> str:
+        """One of FIRST, NEXT, DUPLICATE, BACKWARDS, GAP, INVALID (does not accept it)."""
+        if not math.isfinite(stamp) or stamp < 0.0:
+            return INVALID
+        if self.last is None:
+            return FIRST
+        if stamp == self.last:
+            return DUPLICATE
+        if stamp < self.last:
+            return BACKWARDS
+        if stamp - self.last > self.max_gap:
+            return GAP
+        return NEXT
+
+    def accept(self, stamp: float) -> None:
+        self.last = float(stamp)
+
+
+class OdometryWait(Generic[T]):
+    """Holds scans (in arrival order) until odometry stamped at or after them has arrived, so
+    the odometry prior is interpolated rather than extrapolated.
+
+    A scan waits at most ``max_wait`` seconds after its arrival. When a wait runs out the
+    odometry stream counts as *stalled*: everything held is released at once and later scans
+    pass without waiting until odometry arrives again. A stream that stops therefore costs
+    ``max_wait`` once, not on every scan. Without odometry in the last ``max_wait`` seconds (a
+    robot without odometry) scans never wait.
+    """
+
+    def __init__(self, max_wait: float):
+        self.max_wait = float(max_wait)
+        self._pending: deque[tuple[float, float, T]] = deque()   # (arrival, stamp, item)
+        self._odometry_stamp = -math.inf
+        self._odometry_arrival = -math.inf
+        self._stalled = False
+        self.stalls = 0
+
+    def __len__(self) -> int:
+        return len(self._pending)
+
+    def add_scan(self, arrival: float, stamp: float, item: T) -> list[T]:
+        """Queue a scan; return the items that are ready, oldest first."""
+        ready = self.release(arrival)
+        if not self._pending and (self._stalled or stamp <= self._odometry_stamp
+                                  or arrival - self._odometry_arrival > self.max_wait):
+            return ready + [item]
+        self._pending.append((arrival, stamp, item))
+        return ready + self.release(arrival)
+
+    def add_odometry(self, arrival: float, stamp: float) -> list[T]:
+        self._odometry_stamp = max(self._odometry_stamp, stamp)
+        self._odometry_arrival = max(self._odometry_arrival, arrival)
+        self._stalled = False
+        return self.release(arrival)
+
+    def release(self, now: float) -> list[T]:
+        """Items whose odometry has arrived or whose wait is over at time ``now``."""
+        ready = []
+        while self._pending:
+            arrival, stamp, item = self._pending[0]
+            if stamp <= self._odometry_stamp:
+                ready.append(self._pending.popleft()[2])
+            elif now - arrival > self.max_wait:
+                self._stalled = True
+                self.stalls += 1
+                ready.extend(entry[2] for entry in self._pending)
+                self._pending.clear()
+            else:
+                break
+        return ready
+
+    def flush(self) -> list[T]:
+        """Every held item (end of a recording)."""
+        items = [item for _, _, item in self._pending]
+        self._pending.clear()
+        return items
+
+
+class StampPairer:
+    """Joins several streams whose messages carry identical stamps (an exact-time
+    synchroniser): when every stream has delivered an item for one stamp key,
+    ``on_complete({stream: item})`` is called.
+
+    Keys are exact (integer nanoseconds of the header stamp: a float cannot hold an epoch
+    stamp exactly). At most ``depth`` incomplete keys are kept, the oldest dropped first, and
+    a completed key drops every older incomplete one (they can no longer complete in order).
+    """
+
+    def __init__(self, streams: Iterable[str], on_complete: Callable[[dict], None],
+                 depth: int = 20):
+        self.streams = tuple(streams)
+        self.on_complete = on_complete
+        self.depth = depth
+        self.pending: OrderedDict[int, dict] = OrderedDict()
+        self.dropped = 0
+
+    def add(self, stream: str, key: int, item) -> None:
+        if stream not in self.streams:
+            raise ValueError(f'unknown stream {stream!r}; streams: {", ".join(self.streams)}')
+        entry = self.pending.get(key)
+        if entry is None:
+            newest = next(reversed(self.pending), None)
+            entry = self.pending[key] = {}
+            if newest is not None and key < newest:   # keep keys in stamp order
+                self.pending = OrderedDict(sorted(self.pending.items()))
+        entry[stream] = item
+        if len(entry) == len(self.streams):
+            for old in [k for k in self.pending if k < key]:
+                del self.pending[old]
+                self.dropped += 1
+            del self.pending[key]
+            self.on_complete(entry)
+            return
+        while len(self.pending) > self.depth:
+            self.pending.popitem(last=False)
+            self.dropped += 1

@@ -1,0 +1,110 @@
+"""The scanner's mount on the platform (base -> scanner), as a recording knows it.
+
+Odometry gives the pose of the platform's base frame (its ``child_frame_id``); scans are in
+the scanner's frame (their ``header.frame_id``). When these differ, ego-motion needs the
+transform between them (``ego_motion.mount_x``, ``mount_y``, ``mount_yaw``): a scanner
+0.85 m ahead of the base and turned 42 degrees that is taken to sit at the base puts every
+odometry prediction off by its lever arm as the robot turns. A recording usually carries the
+transform on ``/tf_static`` (or ``/tf``); :func:`recording_mount` finds it, composing a chain
+of frames if needed, and says where the mount came from.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from laser_tracker.conversions import odometry_from_msg, transforms_from_msg
+from laser_tracker.core.geometry import compose, inverse
+
+TF_TYPES = ('tf2_msgs/msg/TFMessage', 'tf/msg/tfMessage')
+MAX_TF_MESSAGES = 2000     # /tf is read only until the mount is found, or this many messages
+
+
+@dataclass
+class Mount:
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+    from_recording: bool = False
+    source: str = 'parameters'      # '/tf_static', '/tf', 'parameters', 'same frame', ...
+    message: str = ''               # what to tell the user ('' = nothing worth saying)
+
+
+def _first_frames(path: Path, scan_topic: str, odom_topic: str | None):
+    from laser_tracker.tools.bag import iter_messages
+
+    scan_frame = base_frame = None
+    topics = [scan_topic] + ([odom_topic] if odom_topic else [])
+    for topic, _, msg in iter_messages(path, topics):
+        if topic == scan_topic and scan_frame is None:
+            scan_frame = str(msg.header.frame_id).lstrip('/')
+        elif topic == odom_topic and base_frame is None:
+            base_frame = odometry_from_msg(msg).child_frame_id.lstrip('/')
+        if scan_frame is not None and (base_frame is not None or not odom_topic):
+            break
+    return scan_frame, base_frame
+
+
+def find_transform(edges: dict, source: str, target: str):
+    """Pose of ``target`` in ``source`` from planar edges ``{(parent, child): (x, y, yaw)}``,
+    following the frame tree in either direction; None if they are not connected."""
+    graph: dict[str, list] = {}
+    for (parent, child), pose in edges.items():
+        p = np.asarray(pose, dtype=float)
+        graph.setdefault(parent, []).append((child, p))
+        graph.setdefault(child, []).append((parent, inverse(p)))
+    best = {source: np.zeros(3)}
+    queue = deque([source])
+    while queue:
+        frame = queue.popleft()
+        if frame == target:
+            return best[frame]
+        for nxt, step in graph.get(frame, []):
+            if nxt not in best:
+                best[nxt] = compose(best[frame], step)
+                queue.append(nxt)
+    return None
+
+
+def recording_mount(path: str | Path, scan_topic: str, odom_topic: str | None,
+                    ego_config) -> Mount:
+    """The base -> scanner mount to use for a replay of ``path`` (see the module doc)."""
+    from laser_tracker.tools.bag import iter_messages, topics
+
+    path = Path(path)
+    configured = (ego_config.mount_x, ego_config.mount_y, ego_config.mount_yaw)
+    has_config = any(v != 0.0 for v in configured)
+    if not odom_topic:
+        return Mount(*configured, source='parameters (no odometry: the mount is not used)')
+    scan_frame, base_frame = _first_frames(path, scan_topic, odom_topic)
+    if not scan_frame or not base_frame or scan_frame == base_frame:
+        return Mount(*configured, source='parameters' if has_config else 'same frame')
+    info = topics(path)
+    tf_topics = sorted((t for t, (typ, _) in info.items() if typ in TF_TYPES),
+                       key=lambda t: (t != '/tf_static', t))
+    edges: dict = {}
+    for topic in tf_topics:
+        for k, (_, _, msg) in enumerate(iter_messages(path, [topic])):
+            for tr in transforms_from_msg(msg):
+                edges.setdefault((tr.parent, tr.child), (tr.x, tr.y, tr.yaw))
+            found = find_transform(edges, base_frame, scan_frame)
+            if found is not None:
+                x, y, yaw = (float(v) for v in found)
+                text = (f'scanner mount from the recording ({topic}, {base_frame} -> '
+                        f'{scan_frame}): x={x:.3f} m, y={y:.3f} m, '
+                        f'yaw={math.degrees(yaw):.1f} deg')
+                if has_config and not np.allclose(configured, (x, y, yaw), atol=1e-6):
+                    text += ' (used instead of the configured ego_motion.mount_*)'
+                return Mount(x, y, yaw, True, topic, text)
+            if k >= MAX_TF_MESSAGES:
+                break
+    if has_config:
+        return Mount(*configured, source='parameters')
+    return Mount(source='unknown', message=(
+        f'warning: the scans are in frame {scan_frame!r} but the odometry is of '
+        f'{base_frame!r}, and the recording has no transform between them: the scanner is '
+        f'taken to sit at {base_frame!r} (set ego_motion.mount_x, mount_y, mount_yaw)'))
