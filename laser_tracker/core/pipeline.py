@@ -194,7 +194,10 @@ class Pipeline:
     # ------------------------------------------------------------------ reporting
     def events(self) -> dict[str, dict[str, int]]:
         """Every stage's counted events (stream rules, skips, restarts) for summaries."""
-        return {'ego_motion': dict(self.ego.events.counts),
+        ego = dict(self.ego.events.counts)
+        ego.update({k: v for k, v in self.ego.estimator.stats.items()
+                    if str(k).startswith('note: ')})
+        return {'ego_motion': ego,
                 'detection': dict(self.detector.events.counts),
                 'tracking': dict(self.tracker.events.counts)}
 

@@ -1,0 +1,263 @@
+"""The stream rules, one suite against every stage (core.stages): what a misbehaving stream
+does (a duplicate, time going backwards, a gap, an invalid stamp, a restarted pose chain)
+is answered by the stage itself, identically offline and in the nodes."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_tracker.core.blobs import Blobs
+from laser_tracker.core.difference import PoseQuality
+from laser_tracker.core.scan import Scan, ScanError
+from laser_tracker.core.stages import Detector, EgoMotion, Head, StampedPose, Tracker
+from laser_tracker.core.stream import OdometryWait, StampPairer, StreamRules
+
+DT = 0.2
+
+
+def ring_scan(stamp: float, mover_y: float | None = None) -> Scan:
+    """A scanner in a 4 m circular room; optionally a 0.15 m post at (2, mover_y)."""
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
+    r = np.full(angles.size, 4.0)
+    if mover_y is not None:
+        c = np.array([2.0, mover_y])
+        d = np.column_stack((np.cos(angles), np.sin(angles)))
+        b = d @ c
+        disc = b * b - (c @ c - 0.15 ** 2)
+        hit = (disc > 0) & (b > 0)
+        r = np.where(hit, np.minimum(r, b - np.sqrt(np.maximum(disc, 0))), r)
+    return Scan(stamp=stamp, ranges=r, angle_min=-math.pi / 2,
+                angle_increment=math.pi / 360, range_min=0.05, range_max=8.0)
+
+
+def pose(stamp: float, restarted: bool = False) -> StampedPose:
+    return StampedPose(stamp=stamp, pose=np.zeros(3), motion=np.zeros(3),
+                       motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
+                       quality=PoseQuality(restarted=restarted))
+
+
+def blobs(stamp: float, x: float, restarted: bool = False) -> Blobs:
+    return Blobs(stamp=stamp, origin=np.zeros(3), xy=np.array([[x, 1.0]]),
+                 cells=np.array([3]), extent=np.array([0.2]), structure=np.array([np.nan]),
+                 restarted=restarted)
+
+
+# --------------------------------------------------------------------- harnesses
+# Each feeds one item at a stamp and says whether the stage still holds history from
+# before (``remembers``), so that one suite states the rules for all of them.
+
+
+class EgoHarness:
+    gap_rule = False          # ego-motion bridges gaps on its motion model / odometry
+
+    def __init__(self):
+        self.stage = EgoMotion()
+        self.last = None
+
+    def feed(self, t, restarted=False):
+        out = self.stage.update(ring_scan(t))
+        self.last = out if out is not None else self.last
+        return out
+
+    def remembers(self) -> bool:
+        return self.last is not None and not self.last.quality.restarted
+
+
+class DetectorHarness:
+    gap_rule = True
+
+    def __init__(self):
+        self.stage = Detector()
+        self.y = -2.0
+
+    def feed(self, t, restarted=False):
+        self.y = -2.0 + t          # a post walking at 1 m/s: a blob whenever there is history
+        return self.stage.update(ring_scan(t, self.y), pose(t, restarted))
+
+    def remembers(self) -> bool:
+        return self.stage.previous is not None
+
+
+class TrackerHarness:
+    gap_rule = True
+
+    def __init__(self):
+        self.stage = Tracker()
+
+    def feed(self, t, restarted=False):
+        return self.stage.update(blobs(t, 1.0 * t, restarted))
+
+    def remembers(self) -> bool:
+        return len(self.stage.hypotheses.hyp) > 0
+
+
+HARNESSES = {'ego_motion': EgoHarness, 'detection': DetectorHarness,
+             'tracking': TrackerHarness}
+
+
+def warm(h, n=6):
+    for k in range(n):
+        assert h.feed(1.0 + k * DT) is not None
+    return 1.0 + (n - 1) * DT
+
+
+@pytest.mark.parametrize('name', HARNESSES)
+def test_a_duplicate_stamp_is_skipped_and_history_is_kept(name):
+    h = HARNESSES[name]()
+    t = warm(h)
+    assert h.remembers()
+    assert h.feed(t) is None
+    assert h.stage.skipped == 'duplicate stamp'
+    assert h.remembers()                                  # not a restart
+    assert h.feed(t + DT) is not None
+
+
+@pytest.mark.parametrize('name', HARNESSES)
+def test_time_going_backwards_restarts_the_stage(name):
+    h = HARNESSES[name]()
+    warm(h)
+    out = h.feed(0.5)
+    assert out is not None
+    assert h.stage.events.counts['restart'] == 1
+    if name == 'ego_motion':
+        assert out.quality.restarted                      # downstream stages are told
+    elif name == 'detection':
+        assert out.blobs.count == 0                        # a first scan: nothing to compare
+    else:
+        assert len(out.hypotheses) == 0
+    warm(h, 3)                                            # and it carries on from there
+
+
+@pytest.mark.parametrize('name', HARNESSES)
+def test_a_long_gap_drops_what_it_makes_stale(name):
+    h = HARNESSES[name]()
+    t = warm(h)
+    out = h.feed(t + 60.0)
+    assert out is not None
+    if h.gap_rule:
+        stale = h.stage.events.counts['history dropped'] + h.stage.events.counts['restart']
+        assert stale == 1
+        if name == 'tracking':
+            assert len(out.hypotheses) == 0
+        else:
+            assert out.blobs.count == 0
+    else:
+        assert not out.quality.restarted                 # the pose chain goes on
+
+
+@pytest.mark.parametrize('name', ['detection', 'tracking'])
+def test_a_restarted_pose_chain_voids_the_history(name):
+    h = HARNESSES[name]()
+    t = warm(h)
+    out = h.feed(t + DT, restarted=True)
+    assert out is not None
+    if name == 'tracking':
+        assert len(out.hypotheses) == 0
+    else:
+        assert out.blobs.count == 0 and out.blobs.restarted
+
+
+def test_invalid_stamps_never_reach_a_stage():
+    for bad in (math.nan, math.inf, -1.0):
+        with pytest.raises(ScanError):
+            ring_scan(bad)
+    tracker = Tracker()
+    assert tracker.update(blobs(math.nan, 0.0)) is None
+    assert tracker.update(blobs(-3.0, 0.0)) is None
+    assert tracker.events.counts['blobs skipped: invalid stamp'] == 2
+    head = Head()
+    head.add_pose(pose(1.0))
+    assert head.update(math.nan, [(1, 1.0, 0.0, 0.0, 0.0, 50.0)]) is None
+
+
+def test_second_publisher_on_blobs_changes_nothing():
+    """Every blobs message twice (two publishers): the tracker output equals one stream."""
+    once, twice = Tracker(), Tracker()
+    for k in range(12):
+        t = 1.0 + k * DT
+        a = once.update(blobs(t, t))
+        b = twice.update(blobs(t, t))
+        assert twice.update(blobs(t, t)) is None
+        assert np.array_equal(a.hypotheses.data, b.hypotheses.data)
+    assert twice.events.counts['blobs skipped: duplicate stamp'] == 12
+    assert 'restart' not in twice.events.counts
+
+
+def test_head_needs_a_recent_pose_and_restarts_when_time_goes_back():
+    head = Head(max_pose_age=0.5)
+    track = [(7, 2.0, 0.0, 0.0, 1.0, 80.0)]
+    assert head.update(1.0, track) is None                 # no pose yet
+    head.add_pose(pose(1.0))
+    cmd = head.update(1.1, track)
+    assert cmd is not None and cmd.track_id == 7 and cmd.pan > 0   # leads the target left
+    assert head.update(2.0, track) is None                 # the pose is 0.9 s old
+    head.add_pose(pose(0.2))                               # pose time went backwards
+    assert head.events.counts['restart'] == 1
+    assert head.update(0.3, track) is not None
+
+
+# -------------------------------------------------------------------- odometry wait
+
+
+def test_odometry_that_stops_costs_the_wait_once_then_scans_flow():
+    ego = EgoMotion(odom_wait=1.0)
+    released = []
+    t = 1.0
+    for k in range(10):                                   # odometry and scans at 10 Hz
+        ego.add_odometry(t, (0.0, 0.0, 0.0), arrival=t)
+        released += ego.add_scan(ring_scan(t), arrival=t + 0.01)
+        t += 0.1
+    assert len(released) == 10
+    # Odometry stops. The first scan after it waits the full second...
+    delays = []
+    for k in range(30):
+        scan = ring_scan(t)
+        arrival = t + 0.01
+        for s, _, _ in ego.add_scan(scan, arrival=arrival):
+            delays.append(arrival - s.stamp)
+        t += 0.1
+    # ...once: after that, every scan flows at once.
+    assert ego.wait.stalls == 1
+    assert len(delays) >= 25 and max(delays[-15:]) < 0.05
+    # Odometry back: scans wait for it again (and are released by it).
+    ego.add_odometry(t, (0.0, 0.0, 0.0), arrival=t)
+    assert ego.add_scan(ring_scan(t + 0.05), arrival=t + 0.06) == []
+    out = ego.add_odometry(t + 0.1, (0.0, 0.0, 0.0), arrival=t + 0.1)
+    assert len(out) == 1 and out[0][2] is not None
+
+
+def test_odometry_wait_releases_by_odometry_and_by_time():
+    wait = OdometryWait(max_wait=1.0)
+    wait.add_odometry(0.0, 0.0)
+    assert wait.add_scan(0.25, 0.2, 's1') == []
+    assert wait.add_odometry(0.5, 0.3) == ['s1']
+    assert wait.add_scan(0.6, 0.55, 's2') == []
+    assert wait.release(1.5) == []
+    assert wait.release(1.7) == ['s2'] and wait.stalls == 1
+
+
+def test_stamp_pairer_joins_three_streams_in_any_order_and_drops_the_unmatchable():
+    got = []
+    pairer = StampPairer(('scan', 'pose', 'status'), got.append, depth=4)
+    pairer.add('pose', 10, 'p10')
+    pairer.add('scan', 10, 's10')
+    assert got == []
+    pairer.add('status', 10, 'q10')
+    assert got == [{'pose': 'p10', 'scan': 's10', 'status': 'q10'}]
+    pairer.add('scan', 20, 's20')                          # never completed
+    pairer.add('status', 30, 'q30')
+    pairer.add('scan', 30, 's30')
+    pairer.add('pose', 30, 'p30')
+    assert got[-1]['scan'] == 's30' and pairer.dropped == 1 and not pairer.pending
+    with pytest.raises(ValueError):
+        pairer.add('laser', 40, 'x')
+
+
+def test_stream_rules_classify():
+    rules = StreamRules(max_gap=1.0)
+    assert rules.classify(1.0) == 'first'
+    rules.accept(1.0)
+    assert [rules.classify(t) for t in (1.0, 0.5, 2.5, 1.5, math.nan, -1.0)] == [
+        'duplicate', 'backwards', 'gap', 'next', 'invalid', 'invalid']
