@@ -291,6 +291,45 @@ def odometry_to_msg(factory: MessageFactory, odom: PlanarOdometry, pose_variance
                                covariance=_covariance(f, twist_variance)))
 
 
+# ----------------------------------------------------------------------------- transforms
+
+
+@dataclass
+class PlanarTransform:
+    """The planar content of a geometry_msgs/TransformStamped: frame ``child``'s pose
+    ``(x, y, yaw)`` in frame ``parent`` (a sensor mount: base_link -> laser)."""
+
+    stamp: float
+    parent: str
+    child: str
+    x: float
+    y: float
+    yaw: float
+
+
+def transforms_to_msg(factory: MessageFactory, transforms) -> Any:
+    """PlanarTransforms -> tf2_msgs/TFMessage (what /tf and /tf_static carry)."""
+    f = factory
+    return f.make('tf2_msgs/msg/TFMessage', transforms=[
+        f.make('geometry_msgs/msg/TransformStamped', header=header(f, t.stamp, t.parent),
+               child_frame_id=t.child,
+               transform=f.make('geometry_msgs/msg/Transform',
+                                translation=f.make('geometry_msgs/msg/Vector3', x=float(t.x),
+                                                   y=float(t.y), z=0.0),
+                                rotation=f.make('geometry_msgs/msg/Quaternion',
+                                                **quaternion_from_yaw(float(t.yaw)))))
+        for t in transforms])
+
+
+def transforms_from_msg(msg) -> list[PlanarTransform]:
+    """tf2_msgs/TFMessage -> PlanarTransforms (z, roll and pitch are dropped)."""
+    return [PlanarTransform(stamp=stamp_to_sec(t.header.stamp), parent=str(t.header.frame_id),
+                            child=str(t.child_frame_id), x=float(t.transform.translation.x),
+                            y=float(t.transform.translation.y),
+                            yaw=yaw_from_quaternion(t.transform.rotation))
+            for t in msg.transforms]
+
+
 # ------------------------------------------------------------------------ moving objects
 
 
