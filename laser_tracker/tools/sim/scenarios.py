@@ -5,7 +5,10 @@ reproduce an experiment); the seed draws the details: furniture jitter and clutt
 person's legs (radius 5-7 cm, 12-20 cm apart), the range noise, dropouts and
 spurious returns, and the odometry noise and jitter. Frames: the world frame is ``map``; the
 platform starts at the pose its trajectory gives at t = 0, where ``odom`` coincides with
-``map``.
+``map``. The paper's experiments have a SICK LMS at the platform's origin;
+``hokuyo_corridor_lobby`` mirrors a real robot instead: a Hokuyo-class scanner mounted off
+the origin and turned (``Scenario.mount``, recorded on /tf_static), glass, and a crowd that
+stops and goes.
 """
 from __future__ import annotations
 
