@@ -417,7 +417,8 @@ def ego_motion_from_msgs(odometry_msg, status_msg=None):
 
 @dataclass
 class PlanarTransform:
-    """The planar part of a geometry_msgs/TransformStamped: ``child`` in ``parent``."""
+    """The planar content of a geometry_msgs/TransformStamped: frame ``child``'s pose
+    ``(x, y, yaw)`` in frame ``parent`` (a sensor mount: base_link -> laser)."""
 
     stamp: float
     parent: str
@@ -439,6 +440,20 @@ def transforms_from_msg(msg) -> list[PlanarTransform]:
                                    x=float(tr.translation.x), y=float(tr.translation.y),
                                    yaw=yaw_from_quaternion(tr.rotation)))
     return out
+
+
+def transforms_to_msg(factory: MessageFactory, transforms) -> Any:
+    """PlanarTransforms -> tf2_msgs/TFMessage (what /tf and /tf_static carry)."""
+    f = factory
+    return f.make('tf2_msgs/msg/TFMessage', transforms=[
+        f.make('geometry_msgs/msg/TransformStamped', header=header(f, t.stamp, t.parent),
+               child_frame_id=t.child,
+               transform=f.make('geometry_msgs/msg/Transform',
+                                translation=f.make('geometry_msgs/msg/Vector3', x=float(t.x),
+                                                   y=float(t.y), z=0.0),
+                                rotation=f.make('geometry_msgs/msg/Quaternion',
+                                                **quaternion_from_yaw(float(t.yaw)))))
+        for t in transforms])
 
 
 def tf_message_to_msg(factory: MessageFactory, msg):

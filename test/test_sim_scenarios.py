@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from laser_tracker.core.geometry import transform_points
+from laser_tracker.core.geometry import compose, transform_points
 from laser_tracker.tools.bag import TYPESTORE
 from laser_tracker.tools.sim.agents import Person
 from laser_tracker.tools.sim.recorder import record
@@ -27,8 +27,10 @@ def _rec(name):
 
 
 def _world_points(rec, k):
+    """Scan k's points in the world frame: platform truth, then the scanner mount."""
     p = rec.truth[k].platform
-    return transform_points((p.x, p.y, p.theta), rec.scans[k].points())
+    return transform_points(compose((p.x, p.y, p.theta), rec.scenario.mount),
+                            rec.scans[k].points())
 
 
 @pytest.mark.parametrize('name', NAMES)
@@ -64,12 +66,12 @@ def test_scenario_is_deterministic_from_its_seed(name):
 @pytest.mark.parametrize('offset', [0, 1])
 @pytest.mark.parametrize('name', NAMES)
 def test_scenario_is_physically_plausible(name, offset):
-    """Nobody walks through walls, furniture or each other; people come and go out of sight
-    and stay within the scanner's 8 m for most of their time in the scene (for the bundled
-    seed and another: the seed moves furniture and clutter)."""
+    """Nobody walks through walls, glass, furniture or each other; people come and go out of
+    sight and stay within the scanner's range for most of their time in the scene (for the
+    bundled seed and another: the seed moves furniture and clutter)."""
     sc = build(name, SCENARIOS[name].default_seed + offset)
     rec = _rec(name) if offset == 0 else record(sc)
-    seg, circ = sc.world.segments, sc.world.circles
+    seg, circ = sc.world.solid, sc.world.circles
     t = np.arange(0.0, sc.scan_start + sc.duration, 0.05)
     assert clearance(sc.platform.pose(t)[:, :2], seg, circ).min() > 0.5
     for a in sc.agents:
@@ -82,7 +84,8 @@ def test_scenario_is_physically_plausible(name, offset):
         else:
             room = clearance(np.concatenate([a.corners(x) for x in ta[::4]]), seg, circ)
         assert room.min() > 0.0, f'{name}: object {a.id} collides with the scene'
-        near = np.linalg.norm(a.centre(ta) - sc.platform.pose(ta)[:, :2], axis=1) < 8.0
+        near = np.linalg.norm(a.centre(ta) - sc.platform.pose(ta)[:, :2], axis=1) < \
+            sc.lidar.range_max
         assert near.mean() > 0.5, f'{name}: object {a.id} is mostly out of range'
         for b in sc.agents:
             if b.id > a.id:

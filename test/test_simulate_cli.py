@@ -1,5 +1,6 @@
 """`laser-tracker simulate` and `laser-tracker summarize`: bags that round-trip, clear errors."""
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -100,3 +101,40 @@ def test_existing_output_needs_overwrite(tmp_path, capsys):
 def test_summarize_of_a_missing_bag_is_a_clear_error(tmp_path, capsys):
     assert main(['summarize', str(tmp_path / 'nothing')]) == 2
     assert 'no such file' in capsys.readouterr().err
+
+
+def test_tf_static_carries_the_scanner_mount(tmp_path):
+    """A scenario with an off-centre scanner records its mount once, first, on /tf_static
+    (base_link -> laser, latched: reliable, transient local, depth 1); the others do not."""
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.rosbag2 import Reader
+
+    from laser_tracker.conversions import transforms_from_msg
+    from laser_tracker.tools.bag import iter_messages
+    from laser_tracker.tools.sim.scenarios import REAL_ROBOT_MOUNT
+
+    sc = dataclasses.replace(build('hokuyo_corridor_lobby'), duration=2.0)
+    out = write_recording(record(sc), tmp_path / 'bag')
+    tf = list(iter_messages(out, ['/tf_static']))
+    assert len(tf) == 1
+    _, t_ns, msg = tf[0]
+    assert t_ns == 0 and msg.__msgtype__ == 'tf2_msgs/msg/TFMessage'
+    (mount,) = transforms_from_msg(msg)
+    assert (mount.parent, mount.child) == ('base_link', 'laser')
+    assert (mount.x, mount.y, mount.yaw) == pytest.approx(REAL_ROBOT_MOUNT)
+    assert (mount.x, mount.y, math.degrees(mount.yaw)) == pytest.approx((0.85, 0.24, 42.0))
+    t = msg.transforms[0]
+    assert t.transform.translation.z == 0.0
+    assert t.transform.rotation.x == 0.0 and t.transform.rotation.y == 0.0
+    assert all(s.frame_id == 'laser' for s in read_scans(out))
+    assert topics(out)['/tf_static'] == ('tf2_msgs/msg/TFMessage', 1)
+    with Reader(out) as reader:
+        (conn,) = [c for c in reader.connections if c.topic == '/tf_static']
+        (qos,) = conn.ext.offered_qos_profiles
+        assert qos.durability == QosDurability.TRANSIENT_LOCAL
+        assert qos.reliability == QosReliability.RELIABLE and qos.depth == 1
+        assert next(reader.messages())[0].topic == '/tf_static'
+    odom = list(iter_messages(out, ['/odom']))
+    assert odom and all(m.child_frame_id == 'base_link' for _, _, m in odom)
+    plain = write_recording(_short('exp3_rotating_static', 2.0), tmp_path / 'plain')
+    assert '/tf_static' not in topics(plain)

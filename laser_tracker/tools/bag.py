@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 from rosbags.highlevel import AnyReader
+from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
+                                QosTime)
 from rosbags.typesys import Stores, get_typestore
 
 from laser_tracker.conversions import (MovingObject, bag_factory, objects_from_marker_array,
@@ -30,6 +32,12 @@ ODOM_TOPIC = '/odom'
 GROUND_TRUTH_TOPIC = '/ground_truth'
 PLATFORM_TRUTH_TOPIC = '/ground_truth/platform'
 PACKAGE = 'laser_tracker'
+TF_STATIC_TOPIC = '/tf_static'
+
+# The QoS tf2's static broadcaster offers: reliable, transient local (latched), keep last 1.
+LATCHED_QOS = (Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
+                   QosDurability.TRANSIENT_LOCAL, QosTime(0, 0), QosTime(0, 0),
+                   QosLiveliness.AUTOMATIC, QosTime(0, 0), False),)
 
 
 class BagWriter:
@@ -57,15 +65,18 @@ class BagWriter:
         self._writer.open()
         return self
 
-    def write(self, topic: str, msg, stamp: float | int) -> None:
+    def write(self, topic: str, msg, stamp: float | int, qos=()) -> None:
         """Append ``msg`` (a rosbags message) on ``topic`` with receive time ``stamp``.
 
         ``stamp`` is seconds (float) or, to keep a recording's times exactly, integer ns.
+        ``qos``: the topic's offered QoS profiles (rosbags ``Qos``), taken from its first
+        message (e.g. :data:`LATCHED_QOS` for /tf_static).
         """
         msgtype = msg.__msgtype__
         conn = self._connections.get(topic)
         if conn is None:
-            conn = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+            conn = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE,
+                                               offered_qos_profiles=list(qos))
             self._connections[topic] = conn
         ns = stamp if isinstance(stamp, int) else sec_to_ns(stamp)
         self._writer.write(conn, ns, TYPESTORE.serialize_cdr(msg, msgtype))

@@ -8,17 +8,20 @@ stamp = first beam, received ``receive_delay`` later), ``/odom`` (nav_msgs/Odome
 ``odom`` -> ``base_link``, received at its stamp), ``/ground_truth`` (visualization_msgs/
 MarkerArray, the moving-object schema in frame ``map``, one per scan at the scan's stamp) and
 ``/ground_truth/platform`` (nav_msgs/Odometry ``map`` -> ``base_link``, the true pose at each
-scan's stamp).
+scan's stamp). A scenario whose scanner is mounted off the platform's origin
+(``publish_mount``) also carries ``/tf_static`` (tf2_msgs/TFMessage, one transform
+``base_link`` -> ``laser``), written once at time 0 with tf2's latched (transient local) QoS.
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from laser_tracker.conversions import objects_to_marker_array, odometry_to_msg, scan_to_msg
+from laser_tracker.conversions import (PlanarTransform, objects_to_marker_array,
+                                       odometry_to_msg, scan_to_msg, transforms_to_msg)
 from laser_tracker.errors import LaserTrackerError
-from laser_tracker.tools.bag import (FACTORY, GROUND_TRUTH_TOPIC, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC,
-                                  SCAN_TOPIC, BagWriter)
+from laser_tracker.tools.bag import (FACTORY, GROUND_TRUTH_TOPIC, LATCHED_QOS, ODOM_TOPIC,
+                                     PLATFORM_TRUTH_TOPIC, SCAN_TOPIC, TF_STATIC_TOPIC, BagWriter)
 from laser_tracker.tools.sim.recorder import WORLD_FRAME, Recording, record
 from laser_tracker.tools.sim.scenarios import SCENARIOS, build
 
@@ -29,11 +32,22 @@ class SimulateError(LaserTrackerError):
     """A simulate command that cannot run (unknown scenario, output in the way)."""
 
 
+def mount_transform(recording: Recording) -> PlanarTransform:
+    """The scanner mount, ``odometry.child_frame_id`` (base_link) -> the scans' frame, as
+    /tf_static carries it (stamped 0: valid at all times)."""
+    sc = recording.scenario
+    x, y, yaw = sc.mount
+    return PlanarTransform(0.0, sc.odometry.child_frame_id, sc.lidar.frame_id, x, y, yaw)
+
+
 def recording_messages(recording: Recording):
     """``[(receive time s, topic, message)]`` of a recording, in the order they are written:
-    by receive time, then /ground_truth/platform, /ground_truth, /scan, /odom."""
+    by receive time, then /tf_static, /ground_truth/platform, /ground_truth, /scan, /odom."""
     f = FACTORY
     rows = []
+    if recording.scenario.publish_mount:
+        rows.append((0.0, -1, 0, TF_STATIC_TOPIC,
+                     transforms_to_msg(f, [mount_transform(recording)])))
     for i, (scan, rx) in enumerate(zip(recording.scans, recording.scan_receive_times)):
         rows.append((float(rx), 2, i, SCAN_TOPIC, scan_to_msg(f, scan)))
     for i, odo in enumerate(recording.odometry_messages()):
@@ -53,7 +67,7 @@ def write_recording(recording: Recording, path: str | Path, storage: str = 'sqli
     path = Path(path)
     with BagWriter(path, storage=storage, overwrite=overwrite) as bag:
         for t, topic, msg in recording_messages(recording):
-            bag.write(topic, msg, t)
+            bag.write(topic, msg, t, qos=LATCHED_QOS if topic == TF_STATIC_TOPIC else ())
     return path
 
 

@@ -1,4 +1,5 @@
-"""A SICK LMS 2xx range scanner model: beam geometry, timing, and its measurement errors.
+"""Range scanner models: beam geometry, timing, and measurement errors of a SICK LMS 2xx
+(:class:`Lidar`) and of a Hokuyo-class scanner (:class:`Hokuyo`, at the end).
 
 Geometry: 180 deg (or 100 deg) in front of the scanner, beams from ``-fov/2`` to ``+fov/2``
 (``angle_min = -pi/2`` for 180 deg) at 0.5 deg (361 beams) or 1 deg (181 beams), x forward.
@@ -83,8 +84,9 @@ class Lidar:
         t0 = math.ceil(t_start * MIRROR_HZ - 1e-9)
         return (t0 + revolutions) / MIRROR_HZ
 
-    def measure(self, true_ranges: np.ndarray, rng: np.random.Generator):
-        """Readings for the true ranges of one sweep (``inf`` = nothing hit).
+    def measure(self, true_ranges: np.ndarray, rng: np.random.Generator, incidence=None):
+        """Readings for the true ranges of one sweep (``inf`` = nothing hit); the LMS model
+        ignores the angle of ``incidence``.
 
         Returns ``(ranges, returned)``: the readings, and which beams report the object they
         hit (not dropped, not spurious, within range). Draws a fixed number of random values
@@ -106,3 +108,117 @@ class Lidar:
         r = np.where(no_return, c.range_max, r)
         returned = in_range & ~dropped & ~spurious & (r < c.range_max)
         return r, returned
+
+
+# ---------------------------------------------------------------------------------- Hokuyo
+@dataclass(frozen=True)
+class HokuyoConfig:
+    """A simulated Hokuyo-class scanner (section ``sim.hokuyo``), as in the real robots'
+    recordings: 768 beams of 2 pi / 1024 rad over 270 deg, 11 m, 1 mm unit.
+
+    Timing: the head turns at ``revolution_hz`` with ``steps_per_revolution`` steps, so beams
+    are ``1 / (revolution_hz * steps)`` s apart (65 us: a 768-beam sweep takes 50 ms) and
+    each beam is taken at its own time. A scan is delivered every ``skip + 1`` revolutions
+    (7.5 Hz); ``scan_time`` is the time between scans, as the drivers report it with a skip.
+
+    Readings: as the LMS model (Gaussian noise, rounding to the unit, random dropouts and
+    spurious short returns), plus dropouts at grazing incidence; a beam without a return
+    reads ``no_return``: 0, an error code below ``range_min`` as the Hokuyo drivers of the
+    real recordings report it (the beam frees nothing), or ``range_max`` or inf.
+    """
+
+    beams: int = param(768, 'Number of beams, centred on the x axis.', min=3, max=4096)
+    steps_per_revolution: int = param(1024, 'Angular steps per head revolution; the angle '
+                                      'between beams is 2 pi / steps.', min=360, max=4096)
+    revolution_hz: float = param(15.0, 'Head revolutions per second.', min=1.0, max=100.0)
+    skip: int = param(1, 'Revolutions skipped between delivered scans (1: every other one, '
+                      '7.5 Hz).', min=0, max=9)
+    range_max: float = param(11.0, 'Largest range reported (m).', min=1.0, max=60.0)
+    range_min: float = param(0.03, 'Smallest valid range (m); error codes lie below it.',
+                             min=0.0, max=1.0)
+    unit: float = param(0.001, 'Resolution of the readings (m).', min=1e-4, max=0.05)
+    noise_sigma: float = param(0.015, 'Standard deviation of the range noise (m).',
+                               min=0.0, max=0.5)
+    dropout_probability: float = param(0.002, 'Probability that a beam that hits something '
+                                       'reports no return.', min=0.0, max=0.5)
+    spurious_probability: float = param(0.0005, 'Probability that a beam reports a random '
+                                        'short range (dust, mixed pixel).', min=0.0, max=0.5)
+    grazing_deg: float = param(80.0, 'Incidence angle (deg from the surface normal) beyond '
+                               'which a return may be lost.', min=45.0, max=90.0)
+    grazing_dropout_probability: float = param(0.5, 'Probability that a beam hitting beyond '
+                                               'grazing_deg reports no return.',
+                                               min=0.0, max=1.0)
+    no_return: str = param('zero', 'Reading of a beam without a return.',
+                           choices=('zero', 'range_max', 'inf'))
+    receive_delay: float = param(0.07, 'Time from the first beam to the scan reaching the host '
+                                 '(s): the rest of the revolution and the USB transfer.',
+                                 min=0.0, max=1.0)
+    mount_x: float = param(0.0, 'Scanner position on the platform, forward (m).',
+                           min=-2.0, max=2.0)
+    mount_y: float = param(0.0, 'Scanner position on the platform, left (m).',
+                           min=-2.0, max=2.0)
+    mount_yaw: float = param(0.0, 'Scanner yaw on the platform (rad).', min=-math.pi,
+                             max=math.pi)
+    frame_id: str = param('laser', 'Frame of the scans.')
+
+
+class Hokuyo:
+    """Beam geometry, timing and measurement model of a :class:`HokuyoConfig`; the same
+    interface as :class:`Lidar`."""
+
+    def __init__(self, config: HokuyoConfig | None = None):
+        self.config = c = config or HokuyoConfig()
+        self.n_beams = int(c.beams)
+        self.angle_increment = 2.0 * math.pi / c.steps_per_revolution
+        self.angle_min = -(self.n_beams // 2) * self.angle_increment
+        self.angles = self.angle_min + self.angle_increment * np.arange(self.n_beams)
+        self.scan_rate_hz = c.revolution_hz / (c.skip + 1)
+        self.scan_time = 1.0 / self.scan_rate_hz
+        self.time_increment = 1.0 / (c.revolution_hz * c.steps_per_revolution)
+        self.beam_offsets = self.time_increment * np.arange(self.n_beams)
+        self.unit = c.unit
+        self.no_return_reading = {'zero': 0.0, 'range_max': c.range_max,
+                                  'inf': math.inf}[c.no_return]
+
+    def scan_stamps(self, t_start: float, duration: float) -> np.ndarray:
+        """Start times of the scans in ``[t_start, t_start + duration)``, on revolutions."""
+        c = self.config
+        count = int(math.floor(duration * self.scan_rate_hz + 1e-9))
+        first = math.ceil(t_start * c.revolution_hz - 1e-9)
+        return (first + (c.skip + 1) * np.arange(count)) / c.revolution_hz
+
+    def measure(self, true_ranges: np.ndarray, rng: np.random.Generator,
+                incidence: np.ndarray | None = None):
+        """Readings for the true ranges of one sweep (``inf`` = nothing hit); ``incidence``
+        (N,) is each hit's angle from the surface normal (rad), None for head-on.
+
+        Returns ``(ranges, returned)`` as :meth:`Lidar.measure`; draws a fixed number of
+        random values per beam.
+        """
+        c = self.config
+        n = true_ranges.size
+        noise = rng.standard_normal(n) * c.noise_sigma
+        u_drop, u_spur, u_len, u_graze = (rng.random(n), rng.random(n), rng.random(n),
+                                          rng.random(n))
+        in_range = np.isfinite(true_ranges) & (true_ranges < c.range_max)
+        grazing = np.zeros(n, dtype=bool) if incidence is None else \
+            np.asarray(incidence) > math.radians(c.grazing_deg)
+        dropped = in_range & ((u_drop < c.dropout_probability)
+                              | (grazing & (u_graze < c.grazing_dropout_probability)))
+        spurious = (u_spur < c.spurious_probability) & ~dropped
+        reach = np.where(in_range, true_ranges, c.range_max)
+        r = np.where(in_range, true_ranges, c.range_max) + noise
+        r = np.where(spurious, 0.1 + u_len * np.maximum(reach - 0.1, 0.0), r)
+        r = np.round(r / self.unit) * self.unit
+        r = np.clip(r, max(c.range_min, self.unit), c.range_max)
+        no_return = (~in_range & ~spurious) | dropped | (r >= c.range_max)
+        r = np.where(no_return, self.no_return_reading, r)
+        returned = in_range & ~dropped & ~spurious & ~no_return
+        return r, returned
+
+
+def make_scanner(config):
+    """The scanner model of a :class:`LidarConfig` (SICK LMS) or :class:`HokuyoConfig`."""
+    if isinstance(config, HokuyoConfig):
+        return Hokuyo(config)
+    return Lidar(config)

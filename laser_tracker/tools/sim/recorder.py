@@ -18,9 +18,9 @@ import numpy as np
 from laser_tracker.conversions import MovingObject, PlanarOdometry
 from laser_tracker.core.scan import Scan
 from laser_tracker.tools.sim.agents import Trajectory
-from laser_tracker.tools.sim.lidar import Lidar, LidarConfig
+from laser_tracker.tools.sim.lidar import HokuyoConfig, LidarConfig, make_scanner
 from laser_tracker.tools.sim.platform import OdometryConfig, OdometryStream, simulate_odometry
-from laser_tracker.tools.sim.world import World, cast
+from laser_tracker.tools.sim.world import World, cast_scene
 
 WORLD_FRAME = 'map'
 
@@ -37,8 +37,15 @@ class Scenario:
     agents: list = field(default_factory=list)
     duration: float = 30.0
     scan_start: float = 0.5
-    lidar: LidarConfig = field(default_factory=LidarConfig)
+    lidar: LidarConfig | HokuyoConfig = field(default_factory=LidarConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    publish_mount: bool = False       # record the scanner mount on /tf_static
+
+    @property
+    def mount(self) -> tuple[float, float, float]:
+        """The scanner's pose on the platform ``(x, y, yaw)``: base_link -> scan frame."""
+        c = self.lidar
+        return (c.mount_x, c.mount_y, c.mount_yaw)
 
     def agent(self, id: int):
         return next(a for a in self.agents if a.id == id)
@@ -76,14 +83,15 @@ def _rngs(seed: int):
 
 def record(scenario: Scenario) -> Recording:
     """Simulate ``scenario``: deterministic from its seed."""
-    lidar = Lidar(scenario.lidar)
+    lidar = make_scanner(scenario.lidar)
     lc = scenario.lidar
     lidar_rng, odom_rng = _rngs(scenario.seed)
     seg_static = scenario.world.segments
     circ_static = scenario.world.circles
     static_sets_seg = [(seg_static, np.zeros(len(seg_static), dtype=np.int64))]
     static_sets_circ = [(circ_static, np.zeros(len(circ_static), dtype=np.int64))]
-    mount = np.array([lc.mount_x, lc.mount_y, lc.mount_yaw])
+    glass = scenario.world.glass
+    mount = np.array(scenario.mount)
 
     stamps = lidar.scan_stamps(scenario.scan_start, scenario.duration)
     scans, truth, owners_all = [], [], []
@@ -105,8 +113,9 @@ def record(scenario: Scenario) -> Recording:
             seg = a.segments(times)                                   # (N, k, 4)
             if seg.shape[1]:
                 seg_sets.append((seg, np.full(seg.shape[1], a.id, dtype=np.int64)))
-        true_ranges, owner = cast(origins, directions, seg_sets, circ_sets)
-        ranges, returned = lidar.measure(true_ranges, lidar_rng)
+        true_ranges, owner, incidence = cast_scene(origins, directions, seg_sets, circ_sets,
+                                                   glass)
+        ranges, returned = lidar.measure(true_ranges, lidar_rng, incidence)
         owner = np.where(returned, owner, -1)
         owners_all.append(owner)
         scans.append(Scan(stamp=float(stamp), ranges=ranges, angle_min=lidar.angle_min,

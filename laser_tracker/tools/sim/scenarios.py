@@ -5,7 +5,10 @@ reproduce an experiment); the seed draws the details: furniture jitter and clutt
 person's legs (radius 5-7 cm, 12-20 cm apart), the range noise, dropouts and
 spurious returns, and the odometry noise and jitter. Frames: the world frame is ``map``; the
 platform starts at the pose its trajectory gives at t = 0, where ``odom`` coincides with
-``map``.
+``map``. The paper's experiments have a SICK LMS at the platform's origin;
+``hokuyo_corridor_lobby`` mirrors a real robot instead: a Hokuyo-class scanner mounted off
+the origin and turned (``Scenario.mount``, recorded on /tf_static), glass, and a crowd that
+stops and goes.
 """
 from __future__ import annotations
 
@@ -16,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.tools.sim.agents import GaitConfig, PathBuilder, Person, Robot
-from laser_tracker.tools.sim.lidar import LidarConfig
+from laser_tracker.tools.sim.lidar import HokuyoConfig, LidarConfig
 from laser_tracker.tools.sim.platform import OdometryConfig
 from laser_tracker.tools.sim.recorder import Scenario
 from laser_tracker.tools.sim.world import World
@@ -340,6 +343,144 @@ def crossing_walkers(seed: int = 5) -> Scenario:
                     scan_start=start)
 
 
+# --------------------------------------------------------------------- real robot
+# The robot of hokuyo_corridor_lobby: a Hokuyo-class scanner on the front left corner,
+# turned 42 deg to the left, as on the real robots where the tracker failed.
+REAL_ROBOT_MOUNT = (0.85, 0.24, 42 * DEG)
+REAL_ROBOT_ODOMETRY_HZ = 10.0
+
+
+def _building(rng: np.random.Generator) -> World:
+    """A corridor (x -4..18, 2.4 m wide, walls 0.15 m thick) with office doors and a
+    glass-fronted meeting room on its north side (x 2.5..12.5), and at its east end a
+    doorway (1.5 m, in a 0.2 m wall) into a lobby (x 18.2..31, y -6.5..7) whose south side is
+    a glass facade onto the street. Door frames are the walls' end faces."""
+    w = World()
+    j = lambda s=0.05: _jitter(rng, s)  # noqa: E731
+    yn, ys, t = 1.275, -1.275, 0.15                       # corridor wall centre lines
+    # North side of the corridor: wall, door N1 (1..2), wall, the meeting room's glass front
+    # (panes between mullions every 1.5 m), wall, door N3 (15..16), wall.
+    for x0, x1 in ((-4.0, 1.0), (2.0, 2.5), (12.5, 15.0), (16.0, 18.0)):
+        w.thick_wall(x0, yn, x1, yn, t)
+    edges = [2.5, 4.0, 5.5, 7.0, 8.5, 10.0, 11.5, 12.5]
+    for x in edges[1:-1]:
+        w.box(x, yn, 0.1, t)                                  # mullions
+    for x0, x1 in zip(edges[:-1], edges[1:]):
+        w.glass_panel(x0 + (0.05 if x0 > edges[0] else 0.0), yn,
+                      x1 - (0.05 if x1 < edges[-1] else 0.0), yn)
+    # South side: doors S0 (-2..-1), S1 (3..4), S2 (10..11).
+    for x0, x1 in ((-4.0, -2.0), (-1.0, 3.0), (4.0, 10.0), (11.0, 18.0)):
+        w.thick_wall(x0, ys, x1, ys, t)
+    w.wall(-4.0, -1.2, -4.0, 1.2)                            # west end of the corridor
+    # Rooms around the corridor (closed; seen only through their doors and the glass).
+    w.polyline([(-4.0, -1.35), (-4.0, -5.0), (18.0, -5.0)])  # south offices
+    for x in (1.0, 8.0, 14.0):
+        w.wall(x, -1.35, x, -5.0)
+    w.box(-2.0 + j(), -4.4, 1.4, 0.7)                        # desks
+    w.box(6.0 + j(), -4.4, 1.4, 0.7)
+    w.box(12.0 + j(), -4.4, 1.4, 0.7)
+    w.polyline([(-4.0, 1.35), (-4.0, 6.5), (18.0, 6.5)])     # north offices, building's back
+    w.wall(1.5, 1.35, 1.5, 6.5)
+    w.wall(2.5, 1.35, 2.5, 5.0)                              # meeting room, door (11.5..12.3)
+    w.wall(12.5, 1.35, 12.5, 5.0)
+    w.wall(2.5, 5.0, 11.5, 5.0)
+    w.wall(12.3, 5.0, 12.5, 5.0)
+    w.table(6.5 + j(), 3.6 + j(), 3.0, 1.2)                  # meeting table and chairs
+    for cx in (5.6, 7.4):
+        w.chair(cx + j(), 4.55 + j(), float(rng.uniform(0, math.pi)))
+    w.box(15.0 + j(), 5.8, 1.4, 0.7)                         # office N3
+    # The lobby: doorway in its west wall (y -1.05..0.45), north door (x 20.5..22.5) to the
+    # stairs, east door (y -1..1) outside; the south side is glass, mullions every 1.6 m.
+    w.thick_wall(18.1, -6.5, 18.1, -1.05, 0.2)
+    w.thick_wall(18.1, 0.45, 18.1, 7.15, 0.2)
+    w.thick_wall(18.0, 7.075, 20.5, 7.075, t)
+    w.thick_wall(22.5, 7.075, 31.15, 7.075, t)
+    w.thick_wall(31.075, -6.5, 31.075, -1.0, t)
+    w.thick_wall(31.075, 1.0, 31.075, 7.0, t)
+    w.polyline([(20.5, 7.15), (20.5, 10.0), (22.5, 10.0), (22.5, 7.15)])       # stairwell
+    mullions = np.arange(18.2, 31.0, 1.6)
+    for x0, x1 in zip(mullions, list(mullions[1:]) + [31.0]):
+        w.glass_panel(x0 + 0.05, -6.5, x1 - 0.05, -6.5)
+        if x1 < 31.0:
+            w.box(x1, -6.5, 0.1, 0.1)
+    w.box(27.0, 6.2 + j(), 3.5, 0.8)                         # coffee counter
+    w.circle(25.0 + j(), -2.6 + j(), 0.3)                    # pillars
+    w.circle(24.0 + j(), 4.2 + j(), 0.3)
+    w.box(28.5 + j(), -5.6, 1.8, 0.5)                        # bench by the facade
+    w.circle(18.8 + j(), -5.8 + j(), 0.25)                   # plant pots
+    w.circle(30.4 + j(), 6.4 + j(), 0.25)
+    return w
+
+
+def hokuyo_corridor_lobby(seed: int = 9) -> Scenario:
+    """A real robot's run: a Hokuyo-class scanner (768 beams over 270 deg, 11 m, 7.5 Hz)
+    mounted 0.85 m forward, 0.24 m left and turned 42 deg on a robot that drives a corridor
+    past office doors and a glass-fronted meeting room while someone walks alongside it,
+    through a doorway into a lobby, turns right, then left along its glass facade; in the lobby
+    people walk in, stand (5-20 s) and walk away, in a pair and a group of three. 40 s."""
+    rng = _scene_rng(seed)
+    w = _building(rng)
+    duration, start = 40.0, 0.5
+    end = start + duration + 1.5
+    turn = 40 * DEG
+    platform = (PathBuilder(0.0, 2.0, -0.3, 0.0).wait(0.5)
+                .go(20.0, -0.3, 0.8)                       # the corridor, through the doorway
+                .turn_by(-math.pi / 2, turn)
+                .go(20.0, -4.3, 0.7)                       # south, towards the facade
+                .turn_by(math.pi / 2, turn)
+                .go(25.0, -4.3, 0.7))                      # east along the glass facade
+    platform.wait_until(end)
+    robot = platform.build()
+    # The walker comes out of office S1 behind the robot, catches up on its left and walks
+    # beside it (0.85 m from its centre line) until turning off into office N3.
+    lane, catch_speed, t_walker = 0.55, 1.5, 3.3
+    t_lane = t_walker + 1.7 / 1.2 + math.hypot(0.5, lane + 0.9) / 1.2   # reaches the lane
+    base_x = robot.position(t_lane)[0]
+    x_side = 4.0 + catch_speed * (base_x - 4.0) / (catch_speed - 0.8)  # level with base_link
+    people = [
+        # The meeting room behind the glass: one stands 17 s and leaves; one walks up to
+        # the glass, stands 9 s and leaves.
+        (0.0, (3.3, 2.4), [17.0, (11.9, 2.4, 1.1), (11.9, 4.6, 1.1), (11.9, 6.0, 1.1)]),
+        (0.0, (11.9, 6.0), [(11.9, 4.6, 1.0), (9.0, 2.0, 1.0), 9.0, (11.9, 4.6, 1.1),
+                            (11.9, 6.0, 1.1)]),
+        # Oncoming in the corridor, passing the robot on its left, into office S0.
+        (0.0, (9.5, 0.6), [(-1.5, 0.6, 1.2), (-1.5, -2.2, 1.2)]),
+        # Alongside the robot, between it and the glass.
+        (t_walker, (3.5, -2.6), [(3.5, -0.9, 1.2), (4.0, lane, 1.2),
+                                 (x_side, lane, catch_speed), (15.0, lane, 0.8),
+                                 (15.5, 1.6, 0.9), (15.5, 3.5, 0.9), (14.0, 4.5, 0.9)]),
+        # Lobby: in by the stairs, coffee at the counter for 15 s, out the same way.
+        (12.0, (21.5, 9.0), [(21.5, 6.0, 1.1), (26.5, 5.2, 1.1), 15.0,
+                             (21.8, 5.9, 1.1), (21.8, 9.2, 1.1)]),
+        # In by the east door to the facade, stands there on the phone for 20 s, leaves the
+        # same way.
+        (9.0, (34.0, -0.3), [(30.0, -0.5, 1.0), (29.5, -4.0, 1.0), 19.5, (30.0, -0.5, 0.9),
+                             (34.0, -0.3, 0.9)]),
+        # In by the east door to the facade, stands 10 s, then walks ahead of the robot.
+        (14.0, (34.0, 0.5), [(30.0, 0.5, 1.2), (23.5, -5.6, 1.2), 10.0, (26.5, -5.6, 1.0),
+                             (29.0, -3.0, 1.0), (30.0, 0.5, 1.0), (34.0, 0.5, 1.0)]),
+        # A group of three abreast, in by the east door and out by the stairs.
+        (19.0, (33.5, 0.6), [(22.1, 0.6, 1.1 * 11.4 / 12.0), (22.1, 9.5, 1.1)]),
+        (19.0, (33.5, 0.0), [(21.5, 0.0, 1.1), (21.5, 9.5, 1.1)]),
+        (19.0, (33.5, -0.6), [(20.9, -0.6, 1.1 * 12.6 / 12.0), (20.9, 9.5, 1.1)]),
+        # A pair side by side in by the east door, stands chatting for 9 s, walks back.
+        (22.0, (33.5, -0.1), [(26.2, -0.1, 1.0), 9.0, (33.5, -0.1, 1.1)]),
+        (22.0, (33.5, -0.7), [(26.2, -0.7, 1.0), 9.0, (33.5, -0.7, 1.1)]),
+        # The street outside the facade, seen through the glass.
+        (22.5, (12.0, -8.0), [(38.0, -8.0, 1.2)]),
+    ]
+    agents = [_person(rng, i + 1, _walk(t0, first, *moves))
+              for i, (t0, first, moves) in enumerate(people)]
+    return Scenario(name='hokuyo_corridor_lobby', seed=seed,
+                    description=_doc(hokuyo_corridor_lobby),
+                    world=w, platform=robot, agents=agents, duration=duration,
+                    scan_start=start,
+                    lidar=HokuyoConfig(mount_x=REAL_ROBOT_MOUNT[0], mount_y=REAL_ROBOT_MOUNT[1],
+                                       mount_yaw=REAL_ROBOT_MOUNT[2]),
+                    odometry=OdometryConfig(rate_hz=REAL_ROBOT_ODOMETRY_HZ),
+                    publish_mount=True)
+
+
 @dataclass(frozen=True)
 class ScenarioInfo:
     build: Callable[[int], Scenario]
@@ -350,7 +491,8 @@ class ScenarioInfo:
 SCENARIOS: dict[str, ScenarioInfo] = {
     f.__name__: ScenarioInfo(f, f.__defaults__[0], _doc(f))
     for f in (exp1_stationary_single_walker, exp2_translating_static, exp3_rotating_static,
-              exp4_corridor_passers, fig8_robot_target, crossing_walkers)
+              exp4_corridor_passers, fig8_robot_target, crossing_walkers,
+              hokuyo_corridor_lobby)
 }
 
 

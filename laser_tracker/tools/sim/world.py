@@ -3,6 +3,8 @@
 Everything the scanner can see at its mounting height is a segment (walls, desk panels,
 cabinets, boxes, the sides of another robot) or a circle (table, chair and human legs, bins,
 pillars). :func:`cast` intersects every beam with every segment and circle at once.
+Glass panes are segments apart (``World.glass``): specular, they return a beam only near
+normal incidence and let the others through (:func:`cast_scene`).
 
 Segments are rows ``(x0, y0, x1, y1)``, circles rows ``(cx, cy, r)``, in metres, world frame.
 Moving geometry (legs, robots) is passed per beam: arrays of shape ``(N, S, 4)`` /
@@ -73,9 +75,51 @@ def cast(origins: np.ndarray, directions: np.ndarray, segment_sets, circle_sets)
     (the id reported for a hit on it; 0 = static world). Returns ``(ranges (N,), owners (N,))``
     with ``inf`` and -1 where a ray hits nothing.
     """
+    best, owner, _ = _nearest(origins, directions, segment_sets, circle_sets, False)
+    return best, owner
+
+
+def cast_scene(origins: np.ndarray, directions: np.ndarray, segment_sets, circle_sets,
+               glass: np.ndarray | None = None):
+    """As :func:`cast`, with glass panels and each hit's angle of incidence.
+
+    ``glass`` (G, 5) rows ``(x0, y0, x1, y1, lobe)``: a specular panel returns a beam only
+    within ``lobe`` rad of its normal (it reflects the rest away, or lets it through), so a
+    beam it does not return goes on to whatever lies behind it. Returns ``(ranges (N,),
+    owners (N,), incidence (N,))``: incidence is the hit's angle from the surface normal
+    (rad, 0 = head-on, pi/2 = grazing), NaN where nothing is hit; a glass return is owned
+    by the static world (0).
+    """
+    best, owner, incidence = _nearest(origins, directions, segment_sets, circle_sets, True)
+    glass = np.zeros((0, 5)) if glass is None else np.asarray(glass, dtype=float)
+    if len(glass):
+        dist = ray_segment_distances(origins, directions, glass[:, :4])
+        cos_inc = _segment_cos_incidence(directions, glass[None, :, :4])
+        dist = np.where(cos_inc >= np.cos(glass[None, :, 4]), dist, np.inf)
+        j = np.argmin(dist, axis=1)
+        rows = np.arange(origins.shape[0])
+        d = dist[rows, j]
+        closer = d < best
+        best = np.where(closer, d, best)
+        owner = np.where(closer, 0, owner)
+        incidence = np.where(closer, np.arccos(np.clip(cos_inc[rows, j], 0.0, 1.0)),
+                             incidence)
+    return best, owner, incidence
+
+
+def _segment_cos_incidence(directions: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """|cos| of the angle between each ray (N, 2) and the normal of each segment (N or 1,
+    S, 4): ``|cross(d, e)| / |e|``."""
+    ex, ey = segments[..., 2] - segments[..., 0], segments[..., 3] - segments[..., 1]
+    cross = directions[:, 0:1] * ey - directions[:, 1:2] * ex
+    return np.abs(cross) / np.maximum(np.hypot(ex, ey), _EPS)
+
+
+def _nearest(origins, directions, segment_sets, circle_sets, with_incidence: bool):
     n = origins.shape[0]
     best = np.full(n, np.inf)
     owner = np.full(n, -1, dtype=np.int64)
+    incidence = np.full(n, np.nan) if with_incidence else None
     rows = np.arange(n)
     groups = [(ray_segment_distances, g, o) for g, o in segment_sets] + \
              [(ray_circle_distances, g, o) for g, o in circle_sets]
@@ -89,7 +133,20 @@ def cast(origins: np.ndarray, directions: np.ndarray, segment_sets, circle_sets)
         closer = d < best
         best = np.where(closer, d, best)
         owner = np.where(closer, owners[j], owner)
-    return best, owner
+        if with_incidence and closer.any():
+            geometry = np.asarray(geometry, dtype=float)
+            hit = geometry[j] if geometry.ndim == 2 else geometry[rows, j]      # (N, 4 or 3)
+            if func is ray_segment_distances:
+                cos_inc = _segment_cos_incidence(directions, hit[:, None, :])[:, 0]
+            else:
+                with np.errstate(invalid='ignore'):
+                    px = origins[:, 0] + directions[:, 0] * d - hit[:, 0]
+                    py = origins[:, 1] + directions[:, 1] * d - hit[:, 1]
+                    cos_inc = np.abs(directions[:, 0] * px + directions[:, 1] * py) / hit[:, 2]
+            with np.errstate(invalid='ignore'):
+                angle = np.arccos(np.clip(cos_inc, 0.0, 1.0))
+            incidence = np.where(closer, angle, incidence)
+    return best, owner, incidence
 
 
 @dataclass
@@ -102,6 +159,7 @@ class World:
 
     _segments: list = field(default_factory=list)
     _circles: list = field(default_factory=list)
+    _glass: list = field(default_factory=list)
 
     @property
     def segments(self) -> np.ndarray:
@@ -110,6 +168,16 @@ class World:
     @property
     def circles(self) -> np.ndarray:
         return np.array(self._circles, dtype=float).reshape(-1, 3)
+
+    @property
+    def glass(self) -> np.ndarray:
+        """Glass panels (G, 5): ``(x0, y0, x1, y1, lobe)``, lobe in rad (see :func:`cast_scene`)."""
+        return np.array(self._glass, dtype=float).reshape(-1, 5)
+
+    @property
+    def solid(self) -> np.ndarray:
+        """Every segment a body cannot pass (walls and glass), (S, 4): for clearances."""
+        return np.concatenate([self.segments, self.glass[:, :4]])
 
     # ------------------------------------------------------------------ primitives
     def wall(self, x0: float, y0: float, x1: float, y1: float) -> World:
@@ -127,6 +195,20 @@ class World:
     def circle(self, x: float, y: float, r: float) -> World:
         self._circles.append((x, y, r))
         return self
+
+    def glass_panel(self, x0: float, y0: float, x1: float, y1: float,
+                    lobe_deg: float = 3.0) -> World:
+        """A glass pane: it returns a beam only within ``lobe_deg`` of its normal."""
+        self._glass.append((x0, y0, x1, y1, math.radians(lobe_deg)))
+        return self
+
+    def thick_wall(self, x0: float, y0: float, x1: float, y1: float,
+                   thickness: float = 0.15) -> World:
+        """A wall with both faces and its end faces (the jambs of the doors beside it): a
+        rectangle from (x0, y0) to (x1, y1) along its centre line."""
+        length = math.hypot(x1 - x0, y1 - y0)
+        return self.box((x0 + x1) / 2.0, (y0 + y1) / 2.0, length, thickness,
+                        math.atan2(y1 - y0, x1 - x0))
 
     # ------------------------------------------------------------------ furniture
     def box(self, cx: float, cy: float, length: float, width: float, yaw: float = 0.0) -> World:
