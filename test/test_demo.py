@@ -10,7 +10,6 @@ import pytest
 
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools import bag as bag_io
-from laser_tracker.tools import demo
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -104,8 +104,9 @@ def test_summarize_of_a_missing_bag_is_a_clear_error(tmp_path, capsys):
 
 
 def test_tf_static_carries_the_scanner_mount(tmp_path):
-    """A scenario with an off-centre scanner records its mount once, first, on /tf_static
-    (base_link -> laser, latched: reliable, transient local, depth 1); the others do not."""
+    """Every recording carries its scanner mount once, first, on /tf_static (base_link ->
+    laser, latched: reliable, transient local, depth 1), as a robot's static transform
+    publisher does: off-centre and turned here, at the platform's origin in the others."""
     from rosbags.interfaces import QosDurability, QosReliability
     from rosbags.rosbag2 import Reader
 
@@ -137,4 +138,7 @@ def test_tf_static_carries_the_scanner_mount(tmp_path):
     odom = list(iter_messages(out, ['/odom']))
     assert odom and all(m.child_frame_id == 'base_link' for _, _, m in odom)
     plain = write_recording(_short('exp3_rotating_static', 2.0), tmp_path / 'plain')
-    assert '/tf_static' not in topics(plain)
+    (_, _, msg), = iter_messages(plain, ['/tf_static'])
+    (origin,) = transforms_from_msg(msg)
+    assert (origin.parent, origin.child) == ('base_link', 'laser')
+    assert (origin.x, origin.y, origin.yaw) == (0.0, 0.0, 0.0)

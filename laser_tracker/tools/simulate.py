@@ -8,9 +8,9 @@ stamp = first beam, received ``receive_delay`` later), ``/odom`` (nav_msgs/Odome
 ``odom`` -> ``base_link``, received at its stamp), ``/ground_truth`` (visualization_msgs/
 MarkerArray, the moving-object schema in frame ``map``, one per scan at the scan's stamp) and
 ``/ground_truth/platform`` (nav_msgs/Odometry ``map`` -> ``base_link``, the true pose at each
-scan's stamp). A scenario whose scanner is mounted off the platform's origin
-(``publish_mount``) also carries ``/tf_static`` (tf2_msgs/TFMessage, one transform
-``base_link`` -> ``laser``), written once at time 0 with tf2's latched (transient local) QoS.
+scan's stamp) and ``/tf_static`` (tf2_msgs/TFMessage, one transform ``base_link`` ->
+``laser``: the scanner mount, at the origin unless the scenario mounts it elsewhere), written
+once at time 0 with tf2's latched (transient local) QoS.
 """
 from __future__ import annotations
 

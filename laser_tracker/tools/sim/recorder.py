@@ -39,7 +39,7 @@ class Scenario:
     scan_start: float = 0.5
     lidar: LidarConfig | HokuyoConfig = field(default_factory=LidarConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
-    publish_mount: bool = False       # record the scanner mount on /tf_static
+    publish_mount: bool = True        # record the scanner mount on /tf_static
 
     @property
     def mount(self) -> tuple[float, float, float]:
