@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from rosbags.rosbag1 import Writer as Ros1Writer
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from laser_tracker.tools.cli import main
 from laser_tracker.conversions import (PlanarOdometry, bag_factory, odometry_to_msg,
@@ -23,6 +23,8 @@ from laser_tracker.tools.data import real_data
 DATA = real_data()
 LEG_BAG = DATA / 'leg_tracker' / 'demo_stationary_simple_environment.bag'
 ROS1 = get_typestore(Stores.ROS1_NOETIC)
+ROS1.register(get_types_from_msg('geometry_msgs/TransformStamped[] transforms',
+                                 'tf2_msgs/msg/TFMessage'))
 
 
 def _leg_bag():
@@ -96,7 +98,7 @@ def test_topics_option_chooses_and_rejects(tmp_path, capsys):
     assert main(['import-bag', str(src), str(tmp_path / 'a'), '--topics', '/base/odom']) == 0
     assert set(topics(tmp_path / 'a')) == {'/base/odom'}
     assert main(['import-bag', str(src), str(tmp_path / 'b'), '--topics', '/chatter']) == 2
-    assert 'only LaserScan and Odometry' in capsys.readouterr().err
+    assert 'only LaserScan, Odometry and TFMessage' in capsys.readouterr().err
     assert main(['import-bag', str(src), str(tmp_path / 'c'), '--topics', '/nope']) == 2
     assert "no topic '/nope'" in capsys.readouterr().err
     assert not (tmp_path / 'b').exists() and not (tmp_path / 'c').exists()
@@ -115,7 +117,7 @@ def test_rosbag2_input_is_accepted(tmp_path):
     src = write_recording(rec, tmp_path / 'sim')
     counts = import_bag(src, tmp_path / 'out', storage='mcap')
     assert counts == {'/odom': len(rec.odometry.stamps), '/ground_truth/platform': len(rec.truth),
-                      '/scan': len(rec.scans), 'skipped': 0}
+                      '/scan': len(rec.scans), '/tf_static': 1, 'skipped': 0}
     for topic in ('/scan', '/odom'):
         a, b = _messages(src, topic), _messages(tmp_path / 'out', topic)
         assert [t for t, _ in a] == [t for t, _ in b]
@@ -174,3 +176,52 @@ def test_existing_output_needs_overwrite(tmp_path, capsys):
     assert 'already exists' in capsys.readouterr().err
     assert main(['import-bag', str(src), str(tmp_path / 'out'), '--overwrite']) == 0
     assert topics(tmp_path / 'out')['/scan'][1] == 2
+
+
+def _ros1_bag_with_mount(path, mount=(0.3, -0.1, 0.5)):
+    """_ros1_bag plus /tf_static: base_link -> laser at ``mount`` (and an unrelated frame)."""
+    from laser_tracker.conversions import PlanarTransform, transforms_to_msg
+    _ros1_bag(path)
+    f = bag_factory(ROS1)
+    tf = transforms_to_msg(f, [PlanarTransform(0.0, 'base_link', 'laser', *mount),
+                               PlanarTransform(0.0, 'base_link', 'camera', 0.1, 0.0, 0.0)])
+    with Ros1Writer(path.with_name('tf.bag')) as w:
+        c = w.add_connection('/tf_static', 'tf2_msgs/msg/TFMessage', typestore=ROS1,
+                             latching=1)
+        w.write(c, 1_299_999_999_000_000_000, ROS1.serialize_ros1(tf, tf.__msgtype__))
+    return path, path.with_name('tf.bag')
+
+
+def test_transforms_are_kept_and_replay_takes_the_scanner_mount_from_them(tmp_path, capsys):
+    from laser_tracker.conversions import transforms_from_msg
+    from laser_tracker.tools.replay import replay_bag
+
+    src, tf_bag = _ros1_bag_with_mount(tmp_path / 'in.bag')
+    out = tmp_path / 'out'
+    # Two ROS 1 bags of one recording: import the transforms, then scans and odometry.
+    assert main(['import-bag', str(tf_bag), str(tmp_path / 'tf')]) == 0
+    (_, _, tf), = iter_messages(tmp_path / 'tf', ['/tf_static'])
+    frames = {(t.parent, t.child): (t.x, t.y, t.yaw) for t in transforms_from_msg(tf)}
+    assert frames[('base_link', 'laser')] == pytest.approx((0.3, -0.1, 0.5))
+    # One recording holding all three (what a robot's rosbag has).
+    from laser_tracker.tools.bag import BagWriter
+    with BagWriter(out) as bag:
+        for topic, t_ns, msg in sorted(
+                list(iter_messages(tmp_path / 'tf', ['/tf_static']))
+                + [m for m in iter_messages(_import(src, tmp_path / 'so'),
+                                            ['/scan', '/base/odom'])], key=lambda m: m[1]):
+            bag.write(topic, msg, t_ns)
+    summary = replay_bag(out, odom_topic='/base/odom', progress=False)
+    mount = summary['scanner_mount']
+    assert mount['source'] == '/tf_static'
+    assert (mount['x'], mount['y'], mount['yaw']) == pytest.approx((0.3, -0.1, 0.5))
+    assert 'scanner mount from the recording' in capsys.readouterr().err
+    # Without the transforms: a clear warning, not a silent zero.
+    plain = replay_bag(tmp_path / 'so', odom_topic='/base/odom', progress=False)
+    assert plain['scanner_mount']['source'] == 'unknown'
+    assert "no transform between them" in capsys.readouterr().err
+
+
+def _import(src, dst):
+    assert import_bag(src, dst)['/scan'] == 20
+    return dst

@@ -37,6 +37,7 @@ class EgoMotionNode(Node):
         node, section = self.params.sections[''], self.params.sections['ego_motion']
         self.stage = EgoMotion(section, node.odom_wait, node.odom_frame)
         self.factory = ros_factory()
+        self._mount_checked = False
         self.pose_pub = self.create_publisher(Odometry, 'ego_motion', common.RELIABLE_OUT)
         self.status_pub = self.create_publisher(DiagnosticArray, 'ego_motion/status',
                                                 common.RELIABLE_OUT)
@@ -58,10 +59,27 @@ class EgoMotionNode(Node):
 
     def on_odom(self, msg: Odometry) -> None:
         odo = odometry_from_msg(msg)
+        self.base_frame = odo.child_frame_id.lstrip('/')
         self.publish(self.stage.add_odometry(odo.stamp, odo.pose, self.now()))
 
     def on_scan(self, msg: LaserScan) -> None:
-        self.publish(self.stage.add_scan(scan_from_msg(msg), self.now()))
+        scan = scan_from_msg(msg)
+        self._check_mount(scan.frame_id.lstrip('/'))
+        self.publish(self.stage.add_scan(scan, self.now()))
+
+    def _check_mount(self, scan_frame: str) -> None:
+        """Warn once when the scans and the odometry are of different frames and no mount is
+        configured: the scanner would silently be taken to sit at the platform's origin."""
+        base = getattr(self, 'base_frame', None)
+        if self._mount_checked or base is None or not scan_frame:
+            return
+        self._mount_checked = True
+        c = self.stage.config
+        if scan_frame != base and (c.mount_x, c.mount_y, c.mount_yaw) == (0.0, 0.0, 0.0):
+            self.get_logger().warning(
+                f'the scans are in frame {scan_frame!r} but the odometry is of {base!r} and '
+                f'ego_motion.mount_x/mount_y/mount_yaw are 0: the scanner is taken to sit at '
+                f'{base!r}; set the mount if it does not')
 
     def publish(self, ready) -> None:
         for _scan, _tag, pose in ready:

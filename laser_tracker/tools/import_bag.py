@@ -1,12 +1,14 @@
 """``laser-tracker import-bag IN OUT``: a ROS 1 bag (or a rosbag2) to a rosbag2 recording.
 
-Keeps the sensor_msgs/LaserScan and nav_msgs/Odometry topics (all of them, or ``--topics``),
-each message converted through ``laser_tracker.conversions`` (``scan_from_msg`` /
-``scan_to_msg``, ``odometry_from_msg`` / ``odometry_to_msg``) into Jazzy definitions, under the
-same topic names and with the original receive times. What the pipeline uses survives
+Keeps the sensor_msgs/LaserScan, nav_msgs/Odometry and tf2_msgs/TFMessage topics (``/tf``,
+``/tf_static``: the scanner's mount on the platform, which ``replay`` reads) — all of them, or
+``--topics`` — each message converted through ``laser_tracker.conversions`` (``scan_from_msg``
+/ ``scan_to_msg``, ``odometry_from_msg`` / ``odometry_to_msg``, ``tf_message_to_msg``) into
+Jazzy definitions, under the same topic names and with the original receive times;
+``/tf_static`` keeps tf2's latched QoS. What the pipeline uses survives
 exactly: ranges (float32), intensities (when one per beam), the scan geometry and timing,
-frame names, the planar pose and velocity, the covariance diagonals. Times pass through float
-seconds, so they are kept to within a microsecond. A scan that cannot be used (say, ranges
+frame names, the planar pose and velocity, the covariance diagonals, every transform; receive
+times exactly, header stamps to within a microsecond (they pass through float seconds). A scan that cannot be used (say, ranges
 that disagree with its angles) is skipped with a logged warning and counted.
 
 Bad input (a missing, unreadable, truncated or malformed bag) ends with one error line naming
@@ -22,16 +24,18 @@ from pathlib import Path
 import numpy as np
 
 from laser_tracker.conversions import (odometry_from_msg, odometry_to_msg, scan_from_msg,
-                                       scan_to_msg)
+                                       scan_to_msg, tf_message_to_msg)
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError, LaserTrackerError
-from laser_tracker.tools.bag import FACTORY, BagWriter, iter_messages, topics
+from laser_tracker.tools.bag import (FACTORY, LATCHED_QOS, TF_STATIC_TOPIC, BagWriter,
+                                     iter_messages, topics)
 
 log = logging.getLogger(__name__)
 
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 ODOM_TYPE = 'nav_msgs/msg/Odometry'
-SUPPORTED = (SCAN_TYPE, ODOM_TYPE)
+TF_TYPE = 'tf2_msgs/msg/TFMessage'
+SUPPORTED = (SCAN_TYPE, ODOM_TYPE, TF_TYPE)
 ROS1_MAGIC = b'#ROSBAG V2.0\n'
 
 
@@ -114,14 +118,15 @@ def import_bag(src: str | Path, dst: str | Path, topic_names=None, storage: str 
             if t not in info:
                 raise ImportBagError(f'{src}: no topic {t!r}; it has: {", ".join(sorted(info))}')
             if t not in available:
-                raise ImportBagError(f'{src}: topic {t!r} is {info[t][0]}; only LaserScan and '
-                                     'Odometry topics can be imported')
+                raise ImportBagError(f'{src}: topic {t!r} is {info[t][0]}; only LaserScan, '
+                                     'Odometry and TFMessage topics can be imported')
         selected = list(dict.fromkeys(topic_names))
     else:
         selected = sorted(available)
     if not selected:
         has = ', '.join(f'{t} ({typ})' for t, (typ, _) in sorted(info.items())) or 'nothing'
-        raise ImportBagError(f'{src}: no LaserScan or Odometry topic (it has: {has})')
+        raise ImportBagError(f'{src}: no LaserScan, Odometry or TFMessage topic (it has: '
+                             f'{has})')
     counts = {t: 0 for t in selected}
     counts['skipped'] = 0
     with BagWriter(dst, storage=storage, overwrite=overwrite) as bag:
@@ -136,12 +141,15 @@ def import_bag(src: str | Path, dst: str | Path, topic_names=None, storage: str 
                 intensities = np.asarray(msg.intensities, dtype=np.float32)
                 out = scan_to_msg(FACTORY, scan, intensities
                                   if intensities.size == scan.n_beams else None)
+            elif available[topic] == TF_TYPE:
+                out = tf_message_to_msg(FACTORY, msg)
             else:
                 odo = odometry_from_msg(msg)
                 out = odometry_to_msg(FACTORY, odo,
                                       np.asarray(msg.pose.covariance, dtype=float)[::7],
                                       np.asarray(msg.twist.covariance, dtype=float)[::7])
-            bag.write(topic, out, t_ns * 1e-9)
+            bag.write(topic, out, int(t_ns),
+                      qos=LATCHED_QOS if topic == TF_STATIC_TOPIC else ())
             counts[topic] += 1
     return counts
 
@@ -150,7 +158,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('input', metavar='IN', help='a ROS 1 .bag file or a rosbag2 folder')
     parser.add_argument('out', metavar='OUT', help='the rosbag2 folder to write')
     parser.add_argument('--topics', nargs='+', metavar='TOPIC',
-                        help='topics to keep (default: every LaserScan and Odometry topic)')
+                        help='topics to keep (default: every LaserScan, Odometry and '
+                             'TFMessage topic)')
     parser.add_argument('--storage', choices=('sqlite3', 'mcap'), default='sqlite3',
                         help='rosbag2 storage plugin (default sqlite3)')
     parser.add_argument('--overwrite', action='store_true',

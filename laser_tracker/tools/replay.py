@@ -144,6 +144,9 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
         wanted.append(odom_topic)
     else:
         log.info('%s: no %s topic: ego-motion from scan matching alone', bag_path, odom_topic)
+    if out_dir is not None:           # an output that cannot be written fails before work
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
     mount = recording_mount(bag_path, scan_topic, odom_topic if has_odometry else None,
                             config.ego_motion)
     if mount.from_recording:
@@ -168,8 +171,6 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
 
     with contextlib.ExitStack() as stack:
         if out_dir is not None:
-            out_dir = Path(out_dir)
-            out_dir.mkdir(parents=True, exist_ok=True)
             ego_f = stack.enter_context(atomic_path(out_dir / 'ego_motion.csv', True)).open('w')
             trk_f = stack.enter_context(atomic_path(out_dir / 'tracks.csv', True)).open('w')
             stack.callback(trk_f.close)
