@@ -14,6 +14,8 @@ SUBJECTS: dict[str, tuple[str, str]] = {
                  'scans per second, ms per stage and peak memory of the whole pipeline'),
     'sick': ('laser_tracker.tools.bench_sick',
              'SICK driver reliability under injected faults'),
+    'graph': ('laser_tracker.tools.bench_graph',
+              'latency and drops of the node graph over DDS at 75 Hz'),
 }
 
 
