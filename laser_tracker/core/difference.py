@@ -64,7 +64,7 @@ import numpy as np
 from laser_tracker.config import param
 from laser_tracker.core.egomotion import SOURCE_ICP, SOURCE_INIT, SOURCE_ODOMETRY, \
     SOURCE_PARTIAL
-from laser_tracker.core.grid import FREE, OCCUPIED, lookup_padded, lookup_stack
+from laser_tracker.core.grid import FREE, OCCUPIED, UNKNOWN, lookup_padded, lookup_stack
 
 #: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` (ICP
 #: refused) and ``none`` are not.
@@ -83,6 +83,16 @@ class DifferenceConfig:
         'been OCCUPIED: a thin static object (a chair leg) that the beams miss in one scan '
         'and hit in the next is then not a change. 0 = paper (previous grid only).',
         min=0, max=50)
+    free_window: float = param(
+        0.0, 'Seconds of earlier grids (the previous one always included) in any of which a '
+        'cell seen FREE (by a deep enough beam, see motion_depth) counts as free before: a '
+        'cell the previous scan did not see (in the moving object\'s own shadow, between '
+        'beams at a fast scan rate) is then still a change, so a walker gives a whole blob '
+        'from its first scans. The memory rule still applies. 0 = paper (the previous grid '
+        'alone).', min=0.0, max=10.0)
+    max_history: int = param(
+        12, 'At most this many earlier grids are kept for memory and free_window (bounds the '
+        'work at high scan rates).', min=1, max=100)
     free_neighbourhood: int = param(
         0, 'Previous-grid cells that must have been FREE for an occupied cell to count as a '
         'change: 0 = the cell itself (paper Eq. 1); 1 = also its 4-neighbours; 2 = also its '
@@ -230,3 +240,42 @@ def changed_cells(ij: np.ndarray, previous_padded: np.ndarray, motion, resolutio
     if k == 0:
         return before[:, 0] == FREE
     return (before == FREE).all(axis=1)
+
+
+def changed_with_history(frame, stamp: float, history, pose, stack, resolution: float,
+                         cells: int, config: DifferenceConfig) -> np.ndarray:
+    """Equation 1 with memory and free-space evidence, at the cells occupied now: a boolean
+    mask over the rows of ``frame.ij``.
+
+    ``frame``, ``stamp``, ``pose``: the current scan's grid, stamp and scanner pose;
+    ``history``: earlier ``(GridFrame, scanner pose, stamp)``, newest (the previous scan) first;
+    ``stack``: the builder's grid buffers they live in. A cell is changed when it was seen
+    FREE (and, with ``motion_depth``, by a beam that went on far enough beyond it) in one of
+    the grids of the last ``free_window`` seconds (the previous grid at least), and was
+    OCCUPIED in none of the previous grid and the ``memory`` grids before it. With
+    ``free_window`` 0 and ``memory`` 0 this is Equation 1 exactly.
+    """
+    ij = frame.ij
+    if ij.shape[0] == 0 or not history:
+        return np.zeros(ij.shape[0], dtype=bool)
+    n_free = 1 + sum(1 for h in history[1:] if stamp - h[2] <= config.free_window)
+    n_occ = min(len(history), config.memory + 1)
+    depth = max(n_free, n_occ)
+    motions = [relative_motion(h[1], pose) for h in history[:depth]]
+    values = lookup_stack(stack, [h[0].index for h in history[:depth]], motions, resolution,
+                          ij)
+    if config.free_neighbourhood:
+        before = lookup_padded(stack[history[0][0].index], motions[0], resolution, ij,
+                               neighbourhood=config.free_neighbourhood)
+        all_free = (before == FREE).all(axis=1)
+        values[0] = np.where(all_free, FREE, np.where(values[0] == FREE, UNKNOWN, values[0]))
+    free = values[:n_free] == FREE
+    if config.motion_depth > 0:
+        for j in range(n_free):
+            rows = np.flatnonzero(free[j])
+            if rows.size:
+                free[j, rows] = deep_free(ij[rows], history[j][0], motions[j], resolution,
+                                          cells, config)
+    changed = free.any(axis=0)
+    changed &= ~(values[:n_occ] == OCCUPIED).any(axis=0)
+    return changed

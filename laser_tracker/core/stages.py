@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from laser_tracker.core.blobs import BlobConfig, Blobs, segment
-from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, changed_cells,
-                                           deep_free, difference_map, not_occupied_before,
-                                           pose_quality, pose_trusted, relative_motion)
+from laser_tracker.core.difference import (DifferenceConfig, PoseQuality,
+                                           changed_with_history, difference_map, pose_quality,
+                                           pose_trusted, relative_motion)
 from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, \
     EgoMotionEstimator
 from laser_tracker.core.grid import GridBuilder, GridConfig, transform_grid
@@ -239,21 +239,27 @@ class Detector:
         self._build()
 
     def _build(self) -> None:
-        self.builder = GridBuilder(self.grid_config, keep=self.difference_config.memory + 2)
+        d = self.difference_config
+        self.depth = max(d.max_history, d.memory + 1)
+        self.builder = GridBuilder(self.grid_config, keep=self.depth + 1)
         self.reset()
 
     def reset(self) -> None:
-        self.previous = None
-        self.previous_pose: np.ndarray | None = None
-        self.earlier: deque = deque(maxlen=self.difference_config.memory + 1)
+        # Earlier grids, newest first: (GridFrame, scanner pose, stamp).
+        self.history: deque = deque(maxlen=self.depth)
         self.rules.reset()
+
+    @property
+    def previous(self):
+        return self.history[0][0] if self.history else None
 
     def reconfigure(self, grid: GridConfig, difference: DifferenceConfig,
                     blobs: BlobConfig) -> None:
         """New parameters from the next scan; a new grid geometry or memory depth drops the
         grid history."""
         rebuild = (grid != self.grid_config
-                   or difference.memory != self.difference_config.memory)
+                   or difference.memory != self.difference_config.memory
+                   or difference.max_history != self.difference_config.max_history)
         self.grid_config, self.difference_config, self.blob_config = grid, difference, blobs
         self.rules.max_gap = difference.max_gap
         if rebuild:
@@ -300,10 +306,9 @@ class Detector:
         times = self.times
         t0 = time.perf_counter() if times is not None else 0.0
         frame = self.builder.build(scan)
-        previous, prev_pose = self.previous, self.previous_pose
-        if previous is not None and self.difference_config.memory:
-            self.earlier.append((previous.index, prev_pose))
-        self.previous, self.previous_pose = frame, pose
+        history = list(self.history)
+        self.history.appendleft((frame, pose, float(scan.stamp)))
+        previous = history[0][0] if history else None
         gated = not pose_trusted(quality, self.difference_config)
         if previous is None or gated:
             det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
@@ -312,24 +317,16 @@ class Detector:
                 det.grid = frame.grid.copy()
                 if previous is not None:
                     det.previous = transform_grid(previous.grid,
-                                                  relative_motion(prev_pose, pose), res)
+                                                  relative_motion(history[0][1], pose), res)
                     det.difference = difference_map(det.grid, det.previous)  # not reported
             if times is not None:
                 times['grid'] += time.perf_counter() - t0
             return det
-        motion = relative_motion(prev_pose, pose)
+        motion = relative_motion(history[0][1], pose)
         t1 = time.perf_counter() if times is not None else 0.0
-        changed = changed_cells(frame.ij, previous.padded, motion, res,
-                                self.difference_config)
-        if len(self.earlier) > 1 and changed.any():
-            # The grid just appended is `previous` itself; the memory is the ones before it.
-            earlier = list(self.earlier)[:-1]
-            changed[changed] = not_occupied_before(
-                frame.ij[changed], self.builder.stack, [e[0] for e in earlier],
-                [e[1] for e in earlier], pose, res)
-        if self.difference_config.motion_depth > 0 and changed.any():
-            changed[changed] = deep_free(frame.ij[changed], previous, motion, res, cells,
-                                         self.difference_config)
+        changed = changed_with_history(frame, float(scan.stamp), history, pose,
+                                       self.builder.stack, res, cells,
+                                       self.difference_config)
         d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:

@@ -163,7 +163,29 @@ def load_truth(bag: str | Path) -> tuple[TruthTable, np.ndarray, np.ndarray]:
     if len(platform) == 0:
         raise InputFileError(bag, 'the platform truth topic holds no messages')
     order = np.argsort(platform.stamps, kind='stable')
-    return TruthTable.from_frames(frames), platform.stamps[order], platform.poses[order]
+    poses = platform.poses[order]
+    mount = scanner_mount(bag)
+    if mount is not None:      # the platform truth is of the base; tracks are the scanner's
+        from laser_tracker.core.geometry import compose
+        poses = np.array([compose(p, mount) for p in poses])
+    return TruthTable.from_frames(frames), platform.stamps[order], poses
+
+
+def scanner_mount(bag) -> np.ndarray | None:
+    """The base -> scanner mount a recording carries on /tf_static (None: none known)."""
+    from laser_tracker.tools.bag import topics
+    from laser_tracker.tools.mount import recording_mount
+
+    info = topics(bag)
+    odom = '/odom' if '/odom' in info else None
+    if odom is None:
+        return None
+    mount = recording_mount(bag, '/scan', odom, _ZeroMount())
+    return np.array([mount.x, mount.y, mount.yaw]) if mount.from_recording else None
+
+
+class _ZeroMount:
+    mount_x = mount_y = mount_yaw = 0.0
 
 
 # ------------------------------------------------------------------------------ scoring
