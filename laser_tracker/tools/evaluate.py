@@ -194,11 +194,13 @@ class Evaluation:
 
 
 def evaluate_replay(folder: str | Path, bag: str | Path,
-                    config: EvaluationConfig = EvaluationConfig()) -> Evaluation:
-    """Score a replay folder against a bag's ground truth (a path or a bundled name)."""
+                    config: EvaluationConfig = EvaluationConfig(),
+                    replay: Replay | None = None) -> Evaluation:
+    """Score a replay folder (or its ``replay``, already read) against a bag's ground truth
+    (a path or a bundled name)."""
     from laser_tracker.tools.demo import resolve_bag
 
-    replay = read_replay(folder)
+    replay = replay or read_replay(folder)
     bag = resolve_bag(bag)
     truth, true_stamps, true_poses = load_truth(bag)
     tol = config.stamp_tolerance * median_period(replay.ego_stamps)
@@ -306,19 +308,18 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
     from laser_tracker.tools.demo import resolve_bag
     from laser_tracker.tools.static_map import StaticMapConfig, evaluate_static
 
+    replay = read_replay(folder)
     bag = resolve_bag(bag)
     annotation_topic = annotation_topic or ANNOTATION_TOPIC
     kind = recording_kind(bag, annotation_topic)
     if kind == 'reference' and static is None:
         static = 'reference'
     if kind == 'simulated':
-        ev = evaluate_replay(folder, bag, config)
+        ev = evaluate_replay(folder, bag, config, replay)
     elif kind == 'annotated':
-        replay = read_replay(folder)
         ann = evaluate_annotated(replay, bag, config, annotation_topic, scan_topic, persons)
         ev = Evaluation(ann.result, None, replay, annotated=ann)
     elif static is not None:
-        replay = read_replay(folder)
         result = {'mode': 'static', 'replay': str(folder), 'bag': str(bag)}
         estimate = score_unlabelled(replay.tracks, replay.ego_stamps, config)
         result['unlabelled_estimate'] = {k: v for k, v in estimate.items() if k != 'tracks'}
