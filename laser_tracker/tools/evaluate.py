@@ -491,6 +491,10 @@ def format_static(st: dict) -> str:
              f'{st["duration_s"]:.1f} s ({st["duration_s"] / 60:.1f} min)',
              f'  confirmed tracks {st["confirmed_tracks"]} ({per} per minute); false (on static'
              f' structure) {st["false_tracks"]} ({fper} per minute)',
+             f'  of the others: unsupported (no return of their scan within '
+             f'{cfg["support"]:g} m) {st["unsupported_tracks"]} '
+             f'({_num(st["unsupported_per_minute"], "{:.2f}")} per minute), moving '
+             f'{st["moving_tracks"]}',
              f'  rule: static cell = hit by at least {100 * cfg["static_share"]:.0f} % of the '
              f'(at least {cfg["min_observations"]}) scans that observed it '
              f'({cfg["resolution"]:g} m cells); false track = at least '
