@@ -584,7 +584,7 @@ def tracks_figure(truth: TruthTable | None, tracks: TrackTable, false_ids: set[i
     standing: hollow); ``static_cells`` (K, 2) drawn as grey squares underneath.
     """
     from laser_tracker.tools.figures import (GROUND_TRUTH_COLOUR, draw_scanner, draw_tracks,
-                                             tracks_legend)
+                                             MAX_ARROW, fit_view, tracks_legend)
     plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(9, 8))
@@ -609,7 +609,9 @@ def tracks_figure(truth: TruthTable | None, tracks: TrackTable, false_ids: set[i
     n = int(np.unique(tracks.track_id).size)
     shown = draw_tracks(ax, tracks.stamp, tracks.track_id, tracks.x, tracks.y, tracks.vx,
                         tracks.vy, false_ids, arrow_s=arrow_s) if n else 0
-    ax.set_aspect('equal', adjustable='datalim')
+    fit_view(ax, np.column_stack((tracks.x, tracks.y)), platform, static_cells,
+             None if truth is None else np.column_stack((truth.x, truth.y)),
+             None if people is None else people[0], pad=MAX_ARROW if arrow_s > 0 else 1.0)
     ax.set(xlabel='x (m)', ylabel='y (m)', title=title)
     ax.grid(True, lw=0.3)
     false_shown = len({int(t) for t in np.unique(tracks.track_id)} & set(false_ids))
@@ -638,7 +640,9 @@ def write_figures(ev: Evaluation, folder: str | Path) -> list[Path]:
             scored = replay.tracks if not result['config']['confirmed_only'] else conf
             written.append(tracks_figure(
                 None, scored, set(), folder / TRACKS_FIGURE,
-                'annotated people and tracks (odometry frame of the replay)',
+                f'annotated people and tracks (odometry frame of the replay'
+                + (f'; {result["ego_motion_runs"]} ego-motion runs overlaid)'
+                   if result['ego_motion_runs'] > 1 else ')'),
                 platform=a.scan_poses, people=(a.people_odom, a.people_id, a.people_walking),
                 segments=a.scan_segments))
         elif result['mode'] == 'ground_truth':

@@ -46,13 +46,14 @@ _PALETTE = ('tab:blue', 'tab:orange', 'tab:purple', 'tab:brown', 'tab:pink', 'ta
 
 
 def broken_path(poses: np.ndarray, jump: float = 2.0, segments=None) -> np.ndarray:
-    """x, y of a pose sequence with NaN where it jumps by more than ``jump`` metres or, when
-    given, where ``segments`` (one run number per pose) changes: an ego-motion restart."""
+    """x, y of a pose sequence with NaN where it jumps by more than ``jump`` metres, returns
+    exactly to the origin (an ego-motion restart without odometry) or, when given, where
+    ``segments`` (one run number per pose) changes."""
     arr = np.asarray(poses, float)
-    xy = arr.reshape(arr.shape[0], -1)[:, :2] if arr.size else np.zeros((0, 2))
-    keep = np.all(np.isfinite(xy), axis=1)
-    xy = xy[keep]
-    cut = np.hypot(*np.diff(xy, axis=0).T) > jump
+    arr = arr.reshape(arr.shape[0], -1) if arr.size else np.zeros((0, 2))
+    keep = np.all(np.isfinite(arr[:, :2]), axis=1)
+    xy, origin = arr[keep, :2], np.all(arr[keep] == 0.0, axis=1)
+    cut = (np.hypot(*np.diff(xy, axis=0).T) > jump) | origin[1:]
     if segments is not None:
         seg = np.asarray(segments)[keep]
         cut |= seg[1:] != seg[:-1]
@@ -78,12 +79,15 @@ def _outlined(colour: str):
             'path_effects': [patheffects.withStroke(linewidth=2.5, foreground='white')]}
 
 
+MAX_ARROW = 2.0   # m: longer velocity arrows (ghosts with absurd speeds) are cut to this
+
+
 def draw_tracks(ax, stamp, track_id, x, y, vx=None, vy=None, false_ids=(), max_labels: int = 25,
                 arrow_s: float = 1.0, arrow_every: float = 5.0) -> int:
     """Tracks on ``ax``: the ``max_labels`` longest-lived (false ones first) in distinct
     colours with their id at their last position and a velocity arrow (``arrow_s`` seconds of
-    travel) every ``arrow_every`` seconds, at most three; the others thin and grey; false
-    tracks red with crosses. Returns how many tracks are labelled."""
+    travel, at most ``MAX_ARROW`` long) every ``arrow_every`` seconds, at most three; the
+    others thin and grey; false tracks red with crosses. Returns how many are labelled."""
     stamp, track_id = np.asarray(stamp, float), np.asarray(track_id)
     x, y = np.asarray(x, float), np.asarray(y, float)
     false_ids = {int(i) for i in false_ids}
@@ -112,17 +116,33 @@ def draw_tracks(ax, stamp, track_id, x, y, vx=None, vy=None, false_ids=(), max_l
         slot = np.floor((stamp[r] - stamp[r[0]]) / arrow_every)
         first = r[np.concatenate(([True], slot[1:] != slot[:-1]))]
         pick = first[:3] if first.size > 1 else r[[r.size // 2]]
-        ax.quiver(x[pick], y[pick], arrow_s * np.asarray(vx)[pick],
-                  arrow_s * np.asarray(vy)[pick], angles='xy', scale_units='xy', scale=1.0,
+        u, v = arrow_s * np.asarray(vx)[pick], arrow_s * np.asarray(vy)[pick]
+        cut = np.minimum(1.0, MAX_ARROW / np.maximum(np.hypot(u, v), 1e-9))
+        ax.quiver(x[pick], y[pick], u * cut, v * cut, angles='xy', scale_units='xy', scale=1.0,
                   color=colour, width=0.0035, headwidth=3.5, headlength=4,
                   headaxislength=3.5, zorder=6)
     return len(labelled)
 
 
+def fit_view(ax, *xy_arrays, pad: float = 1.0) -> None:
+    """Equal-aspect limits that show every finite point of ``xy_arrays`` ((n, >=2) each)."""
+    pts = [np.asarray(a, float).reshape(-1, np.shape(a)[-1])[:, :2] for a in xy_arrays
+           if a is not None and np.size(a)]
+    pts = np.vstack(pts) if pts else np.zeros((0, 2))
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if pts.shape[0] == 0:
+        return
+    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect('equal', adjustable='box')
+
+
 def tracks_legend(ax, n_tracks: int, n_labelled: int, arrow_s: float = 1.0,
                   false: int | None = None) -> None:
     """Legend entries for :func:`draw_tracks` (proxy artists) and the legend itself."""
-    arrows = f'; arrow = {arrow_s:g} s of travel' if arrow_s > 0 else ''
+    arrows = (f'; arrow = {arrow_s:g} s of travel (at most {MAX_ARROW:g} m)' if arrow_s > 0
+              else '')
     ax.plot([], [], '.-', color=_PALETTE[0], label=f'track, id at its end{arrows}')
     if n_labelled < n_tracks:
         ax.plot([], [], '-', color=MINOR_COLOUR,
@@ -149,7 +169,7 @@ def tracks_figure(rows: np.ndarray, scanner: np.ndarray, path: str | Path,
     n = int(np.unique(rows[:, 1]).size)
     shown = draw_tracks(ax, rows[:, 0], rows[:, 1].astype(int), rows[:, 2], rows[:, 3],
                         rows[:, 4], rows[:, 5], max_labels=max_labels) if n else 0
-    ax.set_aspect('equal', adjustable='datalim')
+    fit_view(ax, rows[:, 2:4], scanner, background, pad=MAX_ARROW)
     ax.set_xlabel('x (m, odometry frame)')
     ax.set_ylabel('y (m)')
     ax.set_title(title or f'confirmed tracks ({n})')
