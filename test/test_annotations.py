@@ -219,12 +219,13 @@ def test_speed_is_judged_in_the_odometry_frame():
 # ------------------------------------------------------------------- oracle, end to end
 
 
-def run_eval(tmp_path, people, rows_of, n=40, ego_keep=None, extra_args=()):
+def run_eval(tmp_path, people, rows_of, n=40, ego_keep=None, ego_nan=(), extra_args=()):
     bag = tmp_path / 'bag'
     stamps = write_annotated_bag(bag, people, n)
     poses = scanner_poses(n)
     keep = np.ones(n, bool) if ego_keep is None else ego_keep
-    ego = [(stamps[k], *poses[k]) for k in range(n) if keep[k]]
+    ego = [(stamps[k], *(poses[k] if k not in ego_nan else [np.nan] * 3))
+           for k in range(n) if keep[k]]
     replay = tmp_path / 'replay'
     write_replay(replay, ego, rows_of(stamps, poses))
     assert run_cli('evaluate', replay, bag, '--no-figures', *extra_args) == 0
@@ -259,17 +260,29 @@ def test_perturbed_tracks_give_the_exact_counts(tmp_path):
     assert (mot['num_switches'], mot['num_misses'], mot['num_false_positives']) == (1, 3, 40)
 
 
-def test_scans_without_ego_pose_are_not_scored_but_counted(tmp_path):
+def test_scans_without_ego_pose_are_not_scored_but_counted(tmp_path, caplog):
     keep = np.ones(40, bool)
-    keep[[5, 6, 30]] = False
-    r = run_eval(tmp_path, follower,
+    keep[[5, 6]] = False                       # skipped by the replay: no row
+    r = run_eval(tmp_path, follower,           # scan 30: a row without a pose (NaN)
                  lambda s, p: [row for row in feed_back(s, p, follower, 40)
                                if not np.isclose(row[0], [s[5], s[6], s[30]]).any()],
-                 ego_keep=keep)
+                 ego_keep=keep, ego_nan=(30,))
+    assert '1 of 38 scan(s) without an ego-motion pose' in caplog.text
     assert r['frames_scored'] == 37 and r['annotations']['not_scored_no_pose'] == 3
     assert r['following']['tracked'] == 37 and r['following']['misses'] == 0
     assert r['following_all_annotations'] == {'objects': 40, 'tracked': 37, 'id_switches': 0,
                                               'misses': 3}
+
+
+def test_annotations_all_before_the_scans_score_nothing_without_crashing(tmp_path, capsys):
+    bag = tmp_path / 'bag'
+    write_annotated_bag(bag, lambda k: [], n=10, extra=[(T0 - 1.0, 2, 1.0, 0.0)])
+    replay = tmp_path / 'replay'
+    write_replay(replay, [(T0 + OFFSET + k * DT, 0, 0, 0) for k in range(10)], [])
+    assert run_cli('evaluate', replay, bag, '--no-figures') == 0
+    r = json.loads((replay / 'evaluation.json').read_text())
+    assert r['annotations']['before_first_scan'] == 1 and r['annotations']['placed'] == 0
+    assert r['following']['objects'] == 0 and r['following']['tracked_share'] is None
 
 
 def test_bad_annotated_inputs_give_one_line_errors(tmp_path, capsys):

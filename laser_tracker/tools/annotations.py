@@ -497,7 +497,7 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
     ann = read_annotations(bag, topic, scans)
     placed = len(ann)
     if persons:
-        unknown = sorted(set(int(p) for p in persons) - set(ann.ids()))
+        unknown = sorted({int(p) for p in persons} - set(ann.ids()))
         if unknown:
             raise LaserTrackerError(f'{bag}: no annotated person with id '
                                     f'{", ".join(map(str, unknown))} (ids: '

@@ -1,11 +1,22 @@
-"""``laser-tracker evaluate DIR BAG``: score a replay folder against the bag's ground truth.
+"""``laser-tracker evaluate DIR BAG``: score a replay folder against the recording's labels.
 
 DIR is a ``laser-tracker replay`` output (``ego_motion.csv``, ``tracks.csv``, optionally
-``summary.json``). With ground truth (a simulated recording) it prints CLEAR MOT (motmetrics),
-the paper's table rows and the position error distribution, and writes them as JSON
-(``DIR/evaluation.json`` unless ``--json``) with two figures in DIR. A recording without
-labels is refused with a clear error; ``--no-ground-truth`` reports confirmed tracks and
-estimated false detections per minute instead. Definitions: ``laser_tracker.tools.scoring``.
+``summary.json``); scans are named by their header stamps. What BAG carries decides the score
+(:func:`recording_kind`):
+
+* simulated ground truth (``/ground_truth``): CLEAR MOT (motmetrics), the paper's table rows
+  and the position error distribution (``laser_tracker.tools.scoring``);
+* hand-annotated people (``/ground_truth_people_tracks``, the leg_tracker benchmarks): CLEAR
+  MOT over all annotated people and over the walking ones, and the person-following counts
+  of the benchmark (``--mode following`` prints only those) (``laser_tracker.tools.annotations``);
+* reference poses only (``/ground_truth/platform``, e.g. a SLAM-corrected CARMEN log): false
+  confirmed tracks on static structure per minute (``laser_tracker.tools.static_map``);
+  ``--static-map reference|ego`` adds that count to any recording (``ego``: mapped with the
+  replay's own poses, for raw logs).
+
+Results go to ``DIR/evaluation.json`` (unless ``--json``) with figures in DIR. A recording
+without labels is refused with a clear error; ``--no-ground-truth`` reports confirmed tracks
+and estimated false detections per minute instead.
 """
 from __future__ import annotations
 
@@ -640,7 +651,7 @@ def write_figures(ev: Evaluation, folder: str | Path) -> list[Path]:
             scored = replay.tracks if not result['config']['confirmed_only'] else conf
             written.append(tracks_figure(
                 None, scored, set(), folder / TRACKS_FIGURE,
-                f'annotated people and tracks (odometry frame of the replay'
+                'annotated people and tracks (odometry frame of the replay'
                 + (f'; {result["ego_motion_runs"]} ego-motion runs overlaid)'
                    if result['ego_motion_runs'] > 1 else ')'),
                 platform=a.scan_poses, people=(a.people_odom, a.people_id, a.people_walking),
