@@ -244,3 +244,46 @@ def resolve_bag(name: str | Path) -> Path:
 def has_ground_truth(bag: Path) -> bool:
     found = topics(bag)
     return GROUND_TRUTH_TOPIC in found and PLATFORM_TRUTH_TOPIC in found
+
+
+SCAN_MSGTYPE = 'sensor_msgs/msg/LaserScan'
+
+
+def scan_topics(path: str | Path) -> list[str]:
+    """The sensor_msgs/LaserScan topics of a recording that hold messages, by name."""
+    return sorted(t for t, (typ, n) in topics(path).items() if typ == SCAN_MSGTYPE and n)
+
+
+@dataclass
+class ScanTimes:
+    """When each scan of a topic was recorded: ``receive_ns`` (N,) the bag's receive times
+    (integer ns, the order of the recording) and ``stamps`` (N,) the header stamps (s), which
+    ``laser-tracker replay`` writes; ``frame_id`` of the first scan."""
+
+    topic: str
+    receive_ns: np.ndarray
+    stamps: np.ndarray
+    frame_id: str
+
+    def __len__(self) -> int:
+        return int(self.stamps.size)
+
+
+def read_scan_times(path: str | Path, topic: str = SCAN_TOPIC) -> ScanTimes:
+    """Receive times and header stamps of every message on ``topic``, in receive order.
+
+    Raises InputFileError when the recording has no such topic.
+    """
+    from laser_tracker.conversions import stamp_to_sec
+
+    if topic not in topics(path):
+        raise InputFileError(path, f'no {topic} topic (LaserScan topics: '
+                             f'{", ".join(scan_topics(path)) or "none"})')
+    receive, stamps, frame = [], [], ''
+    for _, t_ns, msg in iter_messages(path, [topic]):
+        receive.append(int(t_ns))
+        stamps.append(stamp_to_sec(msg.header.stamp))
+        frame = frame or str(msg.header.frame_id)
+    order = np.argsort(np.asarray(receive, np.int64), kind='stable')
+    return ScanTimes(topic, np.asarray(receive, np.int64)[order],
+                     np.asarray(stamps, float)[order], frame)

@@ -1,11 +1,22 @@
-"""``laser-tracker evaluate DIR BAG``: score a replay folder against the bag's ground truth.
+"""``laser-tracker evaluate DIR BAG``: score a replay folder against the recording's labels.
 
 DIR is a ``laser-tracker replay`` output (``ego_motion.csv``, ``tracks.csv``, optionally
-``summary.json``). With ground truth (a simulated recording) it prints CLEAR MOT (motmetrics),
-the paper's table rows and the position error distribution, and writes them as JSON
-(``DIR/evaluation.json`` unless ``--json``) with two figures in DIR. A recording without
-labels is refused with a clear error; ``--no-ground-truth`` reports confirmed tracks and
-estimated false detections per minute instead. Definitions: ``laser_tracker.tools.scoring``.
+``summary.json``); scans are named by their header stamps. What BAG carries decides the score
+(:func:`recording_kind`):
+
+* simulated ground truth (``/ground_truth``): CLEAR MOT (motmetrics), the paper's table rows
+  and the position error distribution (``laser_tracker.tools.scoring``);
+* hand-annotated people (``/ground_truth_people_tracks``, the leg_tracker benchmarks): CLEAR
+  MOT over all annotated people and over the walking ones, and the person-following counts
+  of the benchmark (``--mode following`` prints only those) (``laser_tracker.tools.annotations``);
+* reference poses only (``/ground_truth/platform``, e.g. a SLAM-corrected CARMEN log): false
+  confirmed tracks on static structure per minute (``laser_tracker.tools.static_map``);
+  ``--static-map reference|ego`` adds that count to any recording (``ego``: mapped with the
+  replay's own poses, for raw logs).
+
+Results go to ``DIR/evaluation.json`` (unless ``--json``) with figures in DIR. A recording
+without labels is refused with a clear error; ``--no-ground-truth`` reports confirmed tracks
+and estimated false detections per minute instead.
 """
 from __future__ import annotations
 
@@ -38,6 +49,7 @@ FALSE_WORDS = {'0', 'false', 'False', 'FALSE', '0.0'}
 ERROR_FIGURE = 'evaluation_position_error.png'
 TRACKS_FIGURE = 'evaluation_tracks.png'
 REPORT_FIGURE = 'report_tracks.png'
+STATIC_FIGURE = 'evaluation_static.png'
 
 
 # ------------------------------------------------------------------------------ reading
@@ -101,7 +113,11 @@ def _finite(values):
 
 
 def _ego_row(r):
-    return tuple(_finite(r))
+    """stamp, x, y, theta; a pose of NaN (a scan the replay could not place) is kept."""
+    stamp, x, y, theta = (float(v) for v in r)
+    if not math.isfinite(stamp) or any(math.isinf(v) for v in (x, y, theta)):
+        raise ValueError('non-finite value')
+    return stamp, x, y, theta
 
 
 def _track_row(r):
@@ -118,8 +134,13 @@ def read_replay(folder: str | Path) -> Replay:
                              '--out DIR` first)')
     ego = np.array(_read_csv(folder / 'ego_motion.csv', EGO_COLUMNS, _ego_row),
                    float).reshape(-1, 4)
+    unposed = ~np.all(np.isfinite(ego[:, 1:]), axis=1)
+    if unposed.any():
+        log.warning('%s: %d of %d scan(s) without an ego-motion pose: not scored',
+                    folder / 'ego_motion.csv', int(unposed.sum()), ego.shape[0])
+    ego = ego[~unposed]
     if ego.shape[0] == 0:
-        raise InputFileError(folder / 'ego_motion.csv', 'no scans in the replay')
+        raise InputFileError(folder / 'ego_motion.csv', 'no scans with a pose in the replay')
     tracks = TrackTable.from_rows(_read_csv(folder / 'tracks.csv', TRACK_COLUMNS, _track_row))
     summary = {}
     summary_path = folder / 'summary.json'
@@ -201,14 +222,18 @@ class Evaluation:
     truth: TruthTable | None = None
     tracks_map: TrackTable | None = None
     platform_poses: np.ndarray | None = None
+    annotated: object | None = None     # annotations.AnnotatedEvaluation
+    static: object | None = None        # static_map.StaticEvaluation
 
 
 def evaluate_replay(folder: str | Path, bag: str | Path,
-                    config: EvaluationConfig = EvaluationConfig()) -> Evaluation:
-    """Score a replay folder against a bag's ground truth (a path or a bundled name)."""
+                    config: EvaluationConfig = EvaluationConfig(),
+                    replay: Replay | None = None) -> Evaluation:
+    """Score a replay folder (or its ``replay``, already read) against a bag's ground truth
+    (a path or a bundled name)."""
     from laser_tracker.tools.bag import resolve_bag
 
-    replay = read_replay(folder)
+    replay = replay or read_replay(folder)
     bag = resolve_bag(bag)
     truth, true_stamps, true_poses = load_truth(bag)
     tol = config.stamp_tolerance * median_period(replay.ego_stamps)
@@ -283,6 +308,67 @@ def report_unlabelled(folder: str | Path,
     return Evaluation(result, None, replay)
 
 
+def recording_kind(bag: str | Path, annotation_topic: str | None = None) -> str:
+    """What a recording is scored against: ``simulated`` (``/ground_truth``), ``annotated``
+    (hand annotations of people), ``reference`` (reference poses only, e.g. a SLAM-corrected
+    CARMEN log) or ``unlabelled``."""
+    from laser_tracker.tools.annotations import ANNOTATION_TOPIC
+    from laser_tracker.tools.bag import GROUND_TRUTH_TOPIC, PLATFORM_TRUTH_TOPIC, topics
+
+    info = topics(bag)
+    if GROUND_TRUTH_TOPIC in info:
+        return 'simulated'
+    if (annotation_topic or ANNOTATION_TOPIC) in info:
+        return 'annotated'
+    if PLATFORM_TRUTH_TOPIC in info:
+        return 'reference'
+    return 'unlabelled'
+
+
+def evaluate_recording(folder: str | Path, bag: str | Path,
+                       config: EvaluationConfig = EvaluationConfig(), *,
+                       static: str | None = None, scan_topic: str | None = None,
+                       annotation_topic: str | None = None, persons=None,
+                       static_config=None) -> Evaluation:
+    """Score a replay folder against whatever ground truth ``bag`` carries.
+
+    Simulated ground truth: :func:`evaluate_replay`; hand annotations:
+    ``annotations.evaluate_annotated``; reference poses only: false tracks on static
+    structure (``static_map.evaluate_static``). ``static`` (``reference`` or ``ego``) adds the
+    static-structure count to any of them, or asks for it on an unlabelled recording.
+    """
+    from laser_tracker.tools.annotations import ANNOTATION_TOPIC, evaluate_annotated
+    from laser_tracker.tools.bag import resolve_bag
+    from laser_tracker.tools.static_map import StaticMapConfig, evaluate_static
+
+    replay = read_replay(folder)
+    bag = resolve_bag(bag)
+    annotation_topic = annotation_topic or ANNOTATION_TOPIC
+    kind = recording_kind(bag, annotation_topic)
+    if kind == 'reference' and static is None:
+        static = 'reference'
+    if kind == 'simulated':
+        ev = evaluate_replay(folder, bag, config, replay)
+    elif kind == 'annotated':
+        ann = evaluate_annotated(replay, bag, config, annotation_topic, scan_topic, persons)
+        ev = Evaluation(ann.result, None, replay, annotated=ann)
+    elif static is not None:
+        result = {'mode': 'static', 'replay': str(folder), 'bag': str(bag)}
+        estimate = score_unlabelled(replay.tracks, replay.ego_stamps, config)
+        result['unlabelled_estimate'] = {k: v for k, v in estimate.items() if k != 'tracks'}
+        ev = Evaluation(result, None, replay)
+    else:
+        raise InputFileError(bag, 'has no ground truth (no /ground_truth, annotation or '
+                             'reference pose topic): a real recording? use `laser-tracker '
+                             'evaluate DIR BAG --static-map ego` (false tracks on static '
+                             'structure) or `laser-tracker evaluate DIR --no-ground-truth`')
+    if static is not None:
+        ev.static = evaluate_static(ev.replay, bag, static, scan_topic,
+                                    static_config or StaticMapConfig(), config)
+        ev.result['static_structure'] = ev.static.result
+    return ev
+
+
 # ------------------------------------------------------------------------------ output
 
 
@@ -290,10 +376,26 @@ def _num(v, fmt='{:.3f}'):
     return '-' if v is None else fmt.format(v)
 
 
-def format_table(result: dict) -> str:
-    """The human-readable table of an ``evaluate_replay`` or ``report_unlabelled`` result."""
-    if result['mode'] == 'unlabelled':
+def format_table(result: dict, view: str = 'clear-mot') -> str:
+    """The human-readable table of an evaluation result (``evaluation.json``).
+
+    ``view`` ``following`` prints only the person-following counts of an annotated recording.
+    """
+    mode = result['mode']
+    if mode == 'unlabelled':
         return format_unlabelled(result)
+    if mode == 'annotated':
+        text = format_annotated(result, view)
+    elif mode == 'static':
+        text = format_static_only(result)
+    else:
+        text = format_ground_truth(result)
+    if result.get('static_structure') and not (mode == 'annotated' and view == 'following'):
+        text += '\n\n' + format_static(result['static_structure'])
+    return text
+
+
+def format_ground_truth(result: dict) -> str:
     cfg = result['config']
     which = 'confirmed tracks' if cfg['confirmed_only'] else 'all hypotheses'
     lines = [f'evaluation of {result["replay"]} against {result["bag"]}',
@@ -343,6 +445,113 @@ def format_table(result: dict) -> str:
         lines += ['', f'unlabelled estimate (cross-check of --no-ground-truth): '
                   f'{u["estimated_false"]} of {u["confirmed_tracks"]} confirmed tracks '
                   f'would count as false ({_rule(u)})']
+    return '\n'.join(lines)
+
+
+def _n(v) -> str:
+    return f'{v:,}'
+
+
+def format_following(result: dict) -> list[str]:
+    f, c = result['following'], result['following_all_annotations']
+    share = f'{100 * f["tracked_share"]:.1f} %' if f['tracked_share'] is not None else '-'
+    share_all = f'{100 * c["tracked"] / c["objects"]:.1f} %' if c['objects'] else '-'
+    return [
+        f'person following (leg_tracker benchmark counting, false positives ignored), '
+        f'threshold {result["config"]["threshold"]:.2f} m',
+        f'  scored scans:     {_n(f["tracked"])} of {_n(f["objects"])} positions tracked '
+        f'({share}), {_n(f["id_switches"])} ID switches, {_n(f["misses"])} misses'
+        f'  [{_n(f["false_positives"])} false positives not counted]',
+        f'  all annotations:  {_n(c["tracked"])} of {_n(c["objects"])} positions tracked '
+        f'({share_all}), {_n(c["id_switches"])} ID switches, {_n(c["misses"])} misses'
+        f'  (as the benchmark table counts; positions at unscored scans are misses)']
+
+
+def format_annotated(result: dict, view: str = 'clear-mot') -> str:
+    a, cfg = result['annotations'], result['config']
+    which = 'confirmed tracks' if cfg['confirmed_only'] else 'all hypotheses'
+    off = result['header_minus_receive_s']
+    lines = [f'evaluation of {result["replay"]} against {result["bag"]} '
+             f'(hand-annotated people on {result["annotation_topic"]})',
+             f'  scans of {result["scan_topic"]} (frame {result["scan_frame"] or "?"}): '
+             f'{_n(result["scans"])}; scored (the replay has an ego-motion pose): '
+             f'{_n(result["frames_scored"])}']
+    if abs(off) > 1.0:
+        lines.append(f'  header stamps run {abs(off):.1f} s {"ahead of" if off > 0 else "behind"}'
+                     f' receive times: each annotation is placed at the scan received before '
+                     f'it')
+    dropped = ', '.join(f'{a[k]} {text}' for k, text in (
+        ('before_first_scan', 'before the first scan'),
+        ('after_last_scan_dropped', 'long after the last scan'),
+        ('non_finite', 'non-finite'), ('duplicates', 'duplicate')) if a.get(k))
+    lines.append(f'  annotations: {_n(a["messages"])} messages, {_n(a["placed"])} placed'
+                 f'{" (dropped: " + dropped + ")" if dropped else ""}; person id(s) '
+                 f'{", ".join(map(str, a["persons"]))}')
+    lines.append(f'    scored {_n(a["scored"])} ({_n(a["not_scored_no_pose"])} at scans '
+                 f'without an ego-motion pose); walking {_n(a["walking"])}, standing '
+                 f'{_n(a["standing"])} (slower than {cfg["walking_speed"]:.2f} m/s in the '
+                 f'odometry frame over {cfg["speed_window"]:.1f} s), speed unknown '
+                 f'{_n(a["speed_unknown"])} (counted as walking)')
+    lines.append(f'  {which}: {result["tracks_scored"]} scored')
+    if view == 'following':
+        return '\n'.join(lines + [''] + format_following(result))
+    mot = result['clear_mot']
+    lines += ['', f'CLEAR MOT, threshold {cfg["threshold"]:.2f} m {"":<14} {"all":>11} '
+              f'{"walking":>11}']
+    names = [('MOTA', 'mota', '{:.3f}'), ('MOTP (m)', 'motp', '{:.3f}'),
+             ('ID switches', 'num_switches', '{:d}'),
+             ('false positives', 'num_false_positives', '{:d}'),
+             ('misses', 'num_misses', '{:d}'), ('matches', 'num_matches', '{:d}'),
+             ('objects (annotated positions)', 'num_objects', '{:d}'),
+             ('precision', 'precision', '{:.3f}'), ('recall', 'recall', '{:.3f}')]
+    for label, key, fmt in names:
+        lines.append(f'  {label:<40} {_num(mot["all"][key], fmt):>11} '
+                     f'{_num(mot["walking"][key], fmt):>11}')
+    lines.append('  (only the annotated people are labelled: tracks on anyone else are false '
+                 'positives here)')
+    lines += [''] + format_following(result)
+    return '\n'.join(lines)
+
+
+def format_static(st: dict) -> str:
+    cfg = st['config']
+    source = ('reference poses (/ground_truth/platform)' if st['mode'] == 'reference' else
+              f'the replay\'s ego-motion poses, scans within {cfg["window"]:g} s of each track')
+    per = _num(st['confirmed_per_minute'], '{:.1f}')
+    fper = _num(st['false_per_minute'], '{:.2f}')
+    lines = [f'false tracks on static structure, map from {source}',
+             f'  {_n(st["scans_placed"])} of {_n(st["scans"])} scans placed; '
+             f'{st["duration_s"]:.1f} s ({st["duration_s"] / 60:.1f} min)',
+             f'  confirmed tracks {st["confirmed_tracks"]} ({per} per minute); false (on static'
+             f' structure) {st["false_tracks"]} ({fper} per minute)',
+             f'  of the others: unsupported (no return of their scan within '
+             f'{cfg["support"]:g} m) {st["unsupported_tracks"]} '
+             f'({_num(st["unsupported_per_minute"], "{:.2f}")} per minute), moving '
+             f'{st["moving_tracks"]}',
+             f'  rule: static cell = hit by at least {100 * cfg["static_share"]:.0f} % of the '
+             f'(at least {cfg["min_observations"]}) scans that observed it '
+             f'({cfg["resolution"]:g} m cells); false track = at least '
+             f'{100 * cfg["false_share"]:.0f} % of its confirmed positions within '
+             f'{cfg["near"]:g} m of a static cell']
+    if st['false_list']:
+        lines.append('  false tracks: id, time from the start, place (median position), '
+                     'positions on structure / confirmed')
+        for f in st['false_list'][:20]:
+            lines.append(f'    #{f["track"]:<7} {f["time_s"]:8.1f} s  ({f["x"]:7.2f}, '
+                         f'{f["y"]:7.2f})  {f["on_structure"]}/{f["positions"]}')
+        if len(st['false_list']) > 20:
+            lines.append(f'    ... {len(st["false_list"]) - 20} more in the JSON')
+    return '\n'.join(lines)
+
+
+def format_static_only(result: dict) -> str:
+    lines = [f'evaluation of {result["replay"]} against {result["bag"]} (no labels: static '
+             f'structure only)']
+    u = result.get('unlabelled_estimate') or {}
+    if u:
+        lines.append(f'  unlabelled estimate (cross-check): {u["estimated_false"]} of '
+                     f'{u["confirmed_tracks"]} confirmed tracks would count as false '
+                     f'({_rule(u)})')
     return '\n'.join(lines)
 
 
@@ -397,44 +606,49 @@ def error_figure(errors: np.ndarray, path: Path, threshold: float) -> Path:
     return out
 
 
-def _broken_path(poses: np.ndarray, jump: float = 2.0) -> np.ndarray:
-    """x, y of a pose sequence with NaN where it jumps (an ego-motion restart), for plotting."""
-    xy = np.asarray(poses, float)[:, :2]
-    cut = np.flatnonzero(np.hypot(*np.diff(xy, axis=0).T) > jump) + 1
-    return np.insert(xy, cut, np.nan, axis=0)
-
-
 def tracks_figure(truth: TruthTable | None, tracks: TrackTable, false_ids: set[int],
                   path: Path, title: str, platform: np.ndarray | None = None,
-                  arrow_s: float = 0.5) -> Path:
-    """Object trajectories (grey), tracks (colour) with velocity arrows covering ``arrow_s``
-    seconds of travel, false ones as red crosses."""
+                  arrow_s: float = 1.0, people: tuple | None = None,
+                  static_cells: np.ndarray | None = None, segments=None) -> Path:
+    """Ground truth (thick green), the scanner path (black, dashed), tracks (the longest
+    labelled with their id and velocity arrows of ``arrow_s`` s of travel), false ones red.
+
+    ``people``: ``(xy (A, 2), ids (A,), walking (A,))`` annotated people (walking: filled,
+    standing: hollow); ``static_cells`` (K, 2) drawn as grey squares underneath.
+    """
+    from laser_tracker.tools.figures import (GROUND_TRUTH_COLOUR, draw_scanner, draw_tracks,
+                                             MAX_ARROW, fit_view, tracks_legend)
     plt = pyplot()
 
-    fig, ax = plt.subplots(figsize=(7, 7))
+    fig, ax = plt.subplots(figsize=(9, 8))
+    if static_cells is not None and len(static_cells):
+        ax.plot(static_cells[:, 0], static_cells[:, 1], 's', color='0.8', ms=1.2,
+                label='static structure', zorder=1)
     if platform is not None and len(platform):
-        xy = _broken_path(platform)
-        ax.plot(xy[:, 0], xy[:, 1], color='0.6', lw=1, ls='--', label='scanner')
+        draw_scanner(ax, platform, segments=segments)
     if truth is not None:
         for k, oid in enumerate(np.unique(truth.obj_id)):
             m = truth.obj_id == oid
-            ax.plot(truth.x[m], truth.y[m], color='0.3', lw=2, alpha=0.5,
-                    label='ground truth' if k == 0 else None)
-    colours = [c for i, c in enumerate(plt.get_cmap('tab10').colors) if i != 3]  # no red
-    for k, tid in enumerate(np.unique(tracks.track_id)):
-        m = tracks.track_id == tid
-        bad = int(tid) in false_ids
-        colour = 'tab:red' if bad else colours[k % len(colours)]
-        ax.plot(tracks.x[m], tracks.y[m], 'x' if bad else '.', ms=5 if bad else 3,
-                color=colour)
-        step = max(1, int(m.sum()) // 6)
-        ax.quiver(tracks.x[m][::step], tracks.y[m][::step], arrow_s * tracks.vx[m][::step],
-                  arrow_s * tracks.vy[m][::step], angles='xy', scale_units='xy', scale=1,
-                  width=0.003, color=colour)
-    ax.plot([], [], 'x', color='tab:red', label='false detection')
-    ax.plot([], [], '.', color=colours[0], label=f'track (arrow: {arrow_s:g} s of travel)')
-    ax.set(aspect='equal', xlabel='x (m)', ylabel='y (m)', title=title)
-    ax.legend(loc='best', fontsize=8)
+            ax.plot(truth.x[m], truth.y[m], color=GROUND_TRUTH_COLOUR, lw=5, alpha=0.35,
+                    solid_capstyle='round', label='ground truth' if k == 0 else None,
+                    zorder=2)
+    if people is not None and len(people[0]):
+        xy, _, walking = people
+        walking = np.asarray(walking, bool)
+        ax.plot(xy[walking, 0], xy[walking, 1], 'o', color=GROUND_TRUTH_COLOUR, ms=3,
+                alpha=0.5, label='annotated person, walking', zorder=2)
+        ax.plot(xy[~walking, 0], xy[~walking, 1], 'o', mfc='none', color=GROUND_TRUTH_COLOUR,
+                ms=4, alpha=0.7, label='annotated person, standing (don\'t care)', zorder=2)
+    n = int(np.unique(tracks.track_id).size)
+    shown = draw_tracks(ax, tracks.stamp, tracks.track_id, tracks.x, tracks.y, tracks.vx,
+                        tracks.vy, false_ids, arrow_s=arrow_s) if n else 0
+    fit_view(ax, np.column_stack((tracks.x, tracks.y)), platform, static_cells,
+             None if truth is None else np.column_stack((truth.x, truth.y)),
+             None if people is None else people[0], pad=MAX_ARROW if arrow_s > 0 else 1.0)
+    ax.set(xlabel='x (m)', ylabel='y (m)', title=title)
+    ax.grid(True, lw=0.3)
+    false_shown = len({int(t) for t in np.unique(tracks.track_id)} & set(false_ids))
+    tracks_legend(ax, n, shown, arrow_s, false=false_shown)
     fig.tight_layout()
     out = save_figure(fig, path)
     plt.close(fig)
@@ -446,15 +660,25 @@ def write_figures(ev: Evaluation, folder: str | Path) -> list[Path]:
     folder, result, replay = Path(folder), ev.result, ev.replay
     written = []
     try:
+        conf = replay.tracks.select(replay.tracks.confirmed)
         if result['mode'] == 'unlabelled':
             false_ids = {t['track'] for t in result['tracks'] if t['estimated_false']}
-            conf = replay.tracks.select(replay.tracks.confirmed)
             written.append(tracks_figure(
                 None, conf, false_ids, folder / REPORT_FIGURE,
                 f'confirmed tracks (odometry frame): {len(result["tracks"])}, '
                 f'{len(false_ids)} estimated false (red)',
                 platform=replay.ego_poses))
-        else:
+        elif result['mode'] == 'annotated':
+            a = ev.annotated
+            scored = replay.tracks if not result['config']['confirmed_only'] else conf
+            written.append(tracks_figure(
+                None, scored, set(), folder / TRACKS_FIGURE,
+                'annotated people and tracks (odometry frame of the replay'
+                + (f'; {result["ego_motion_runs"]} ego-motion runs overlaid)'
+                   if result['ego_motion_runs'] > 1 else ')'),
+                platform=a.scan_poses, people=(a.people_odom, a.people_id, a.people_walking),
+                segments=a.scan_segments))
+        elif result['mode'] == 'ground_truth':
             written.append(error_figure(ev.scores.errors, folder / ERROR_FIGURE,
                                         result['config']['threshold']))
             tracks = ev.tracks_map
@@ -464,9 +688,26 @@ def write_figures(ev: Evaluation, folder: str | Path) -> list[Path]:
                 ev.truth, tracks, {f['track'] for f in result['false_detection_list']},
                 folder / TRACKS_FIGURE, 'scored tracks (map frame) and ground truth',
                 platform=ev.platform_poses))
+        if ev.static is not None:
+            written.append(static_figure(ev.static, folder / STATIC_FIGURE))
     except Exception as exc:  # a figure is a by-product: never lose the scores for it
         log.warning('figure not written: %s: %s', type(exc).__name__, exc)
     return written
+
+
+def static_figure(st, path: Path) -> Path:
+    """Static structure (grey), the scanner path and the confirmed tracks, false ones red."""
+    r = st.result
+    tid = st.track_id
+    tracks = TrackTable(stamp=st.track_stamp, track_id=tid, x=st.track_xy[:, 0],
+                        y=st.track_xy[:, 1], vx=np.zeros(tid.size), vy=np.zeros(tid.size),
+                        weight=np.zeros(tid.size), confirmed=np.ones(tid.size, bool))
+    frame = 'reference (map) frame' if r['mode'] == 'reference' else 'odometry frame'
+    return tracks_figure(None, tracks, {v.track for v in st.verdicts if v.false}, path,
+                         f'confirmed tracks on static structure ({frame}): '
+                         f'{r["false_tracks"]} of {r["confirmed_tracks"]} false (red)',
+                         platform=st.scanner, arrow_s=0.0,
+                         static_cells=st.static.static_cells())
 
 
 # ------------------------------------------------------------------------------ command
@@ -477,16 +718,25 @@ def config_from_args(args: argparse.Namespace) -> EvaluationConfig:
 
     values = {'threshold': args.threshold, 'confirmed_only': args.confirmed_only,
               'min_speed': args.min_speed, 'min_displacement': args.min_displacement,
-              'min_track_speed': args.min_track_speed}
+              'min_track_speed': args.min_track_speed, 'walking_speed': args.walking_speed}
     return from_dict(EvaluationConfig, values)
+
+
+def static_config_from_args(args: argparse.Namespace):
+    from laser_tracker.config import from_dict
+    from laser_tracker.tools.static_map import StaticMapConfig
+
+    values = {} if args.static_window is None else {'window': args.static_window}
+    return from_dict(StaticMapConfig, values)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     d = EvaluationConfig()
     parser.add_argument('dir', metavar='DIR', help='a `laser-tracker replay` output folder')
     parser.add_argument('bag', metavar='BAG', nargs='?',
-                        help='the replayed recording, with /ground_truth '
-                             '(not needed with --no-ground-truth)')
+                        help='the replayed recording: simulated (/ground_truth), hand-annotated'
+                             ' (/ground_truth_people_tracks) or with reference poses '
+                             '(/ground_truth/platform); not needed with --no-ground-truth')
     parser.add_argument('--threshold', type=float, default=d.threshold,
                         help=f'match distance in metres (default {d.threshold})')
     group = parser.add_mutually_exclusive_group()
@@ -497,6 +747,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--min-speed', type=float, default=d.min_speed,
                         help=f'objects slower than this (m/s) are standing: not required to '
                              f'be detected, and they end a path (default {d.min_speed})')
+    parser.add_argument('--mode', choices=('clear-mot', 'following'), default='clear-mot',
+                        help='annotated recordings: print CLEAR MOT over all and walking '
+                             'people (default) or only the person-following counts of the '
+                             'leg_tracker benchmarks (tracked, ID switches, misses)')
+    parser.add_argument('--walking-speed', type=float, default=d.walking_speed,
+                        help='annotated recordings: a person slower than this (m/s, '
+                             f'odometry frame) is "don\'t care" in the walking figures '
+                             f'(default {d.walking_speed})')
+    parser.add_argument('--scan-topic', help='the replayed LaserScan topic (default: the '
+                                             'one whose header stamps the replay has)')
+    parser.add_argument('--annotation-topic', help='hand annotations (leg_tracker Person) '
+                                                   '(default /ground_truth_people_tracks)')
+    parser.add_argument('--person', type=int, action='append', metavar='ID',
+                        help='annotated recordings: score only this person id (repeatable)')
+    static = parser.add_mutually_exclusive_group()
+    static.add_argument('--static-map', choices=('reference', 'ego'),
+                        help='also count false confirmed tracks on static structure, mapped '
+                             'with the reference poses (/ground_truth/platform, e.g. a '
+                             'corrected CARMEN log; the default for such a recording) or with '
+                             'the replay\'s own ego-motion poses over local time windows')
+    static.add_argument('--reference-poses', dest='static_map', action='store_const',
+                        const='reference', help='same as --static-map reference')
+    parser.add_argument('--static-window', type=float, default=None, metavar='S',
+                        help='--static-map ego: scans within this time of a track build its '
+                             'map (default 30 s)')
     parser.add_argument('--no-ground-truth', action='store_true',
                         help='unlabelled recording: confirmed tracks and estimated false '
                              'detections per minute')
@@ -523,12 +798,15 @@ def run(args: argparse.Namespace) -> int:
         if not args.bag:
             raise LaserTrackerError('BAG is required (the recording with /ground_truth), '
                                     'or --no-ground-truth for an unlabelled report')
-        ev = evaluate_replay(folder, args.bag, config)
+        ev = evaluate_recording(folder, args.bag, config, static=args.static_map,
+                                scan_topic=args.scan_topic,
+                                annotation_topic=args.annotation_topic, persons=args.person,
+                                static_config=static_config_from_args(args))
     result = ev.result
     figures = [] if args.no_figures else write_figures(ev, folder)
     result['figures'] = [str(p) for p in figures]
     out = write_json(args.json or folder / 'evaluation.json', result)
-    print(format_table(result))
+    print(format_table(result, args.mode))
     print()
     for p in figures:
         print(f'figure: {p}')

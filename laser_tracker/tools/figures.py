@@ -1,7 +1,9 @@
 """Figures like the paper's, drawn with matplotlib (Agg backend, no display needed).
 
-* :func:`tracks_figure`: Fig. 10, the confirmed tracks over a recording, each track's
-  positions coloured by id with its velocity vectors, the scanner path in grey.
+* :func:`tracks_figure`: Fig. 10, the confirmed tracks over a recording: the longest ones
+  coloured and labelled with their id and a few velocity arrows, the others thin and grey,
+  the scanner path black and dashed (start triangle, end square). :func:`draw_tracks` and
+  :func:`draw_scanner` draw the same on any axes (``laser-tracker evaluate`` figures).
 * :func:`scan_figure`: Fig. 5 / Fig. 7 for one scan: (a) current grid, (b) previous grid in
   the current frame, (c) difference map (changes white, no valid data grey), (d) the
   hypotheses' velocities over the scan (lines; confirmed ones marked with a cross).
@@ -34,39 +36,145 @@ def save_figure(fig, path: str | Path) -> Path:
     return path
 
 
+#: Distinct roles: tracks take the palette, never these colours.
+GROUND_TRUTH_COLOUR = 'tab:green'
+SCANNER_COLOUR = 'black'
+FALSE_COLOUR = 'tab:red'
+MINOR_COLOUR = '0.55'
+_PALETTE = ('tab:blue', 'tab:orange', 'tab:purple', 'tab:brown', 'tab:pink', 'tab:olive',
+            'tab:cyan', 'navy', 'darkgoldenrod', 'teal')
+
+
+def broken_path(poses: np.ndarray, jump: float = 2.0, segments=None) -> np.ndarray:
+    """x, y of a pose sequence with NaN where it jumps by more than ``jump`` metres, returns
+    exactly to the origin (an ego-motion restart without odometry) or, when given, where
+    ``segments`` (one run number per pose) changes."""
+    arr = np.asarray(poses, float)
+    arr = arr.reshape(arr.shape[0], -1) if arr.size else np.zeros((0, 2))
+    keep = np.all(np.isfinite(arr[:, :2]), axis=1)
+    xy, origin = arr[keep, :2], np.all(arr[keep] == 0.0, axis=1)
+    cut = (np.hypot(*np.diff(xy, axis=0).T) > jump) | origin[1:]
+    if segments is not None:
+        seg = np.asarray(segments)[keep]
+        cut |= seg[1:] != seg[:-1]
+    return np.insert(xy, np.flatnonzero(cut) + 1, np.nan, axis=0)
+
+
+def draw_scanner(ax, poses: np.ndarray, label: str = 'scanner path', segments=None) -> None:
+    """The scanner path, black dashed, with its start (triangle) and end (square); broken at
+    ego-motion restarts (``segments``, see :func:`broken_path`)."""
+    xy = broken_path(poses, segments=segments)
+    if not xy.size:
+        return
+    ax.plot(xy[:, 0], xy[:, 1], color=SCANNER_COLOUR, lw=0.9, ls='--', alpha=0.8, label=label,
+            zorder=2)
+    ok = xy[np.all(np.isfinite(xy), axis=1)]
+    ax.plot(*ok[0], marker='^', color=SCANNER_COLOUR, ms=7, ls='none', zorder=5)
+    ax.plot(*ok[-1], marker='s', color=SCANNER_COLOUR, ms=6, ls='none', zorder=5)
+
+
+def _outlined(colour: str):
+    from matplotlib import patheffects
+    return {'color': colour, 'fontsize': 8, 'fontweight': 'bold', 'zorder': 7,
+            'path_effects': [patheffects.withStroke(linewidth=2.5, foreground='white')]}
+
+
+MAX_ARROW = 2.0   # m: longer velocity arrows (ghosts with absurd speeds) are cut to this
+
+
+def draw_tracks(ax, stamp, track_id, x, y, vx=None, vy=None, false_ids=(), max_labels: int = 25,
+                arrow_s: float = 1.0, arrow_every: float = 5.0) -> int:
+    """Tracks on ``ax``: the ``max_labels`` longest-lived (false ones first) in distinct
+    colours with their id at their last position and a velocity arrow (``arrow_s`` seconds of
+    travel, at most ``MAX_ARROW`` long) every ``arrow_every`` seconds, at most three; the
+    others thin and grey; false tracks red with crosses. Returns how many are labelled."""
+    stamp, track_id = np.asarray(stamp, float), np.asarray(track_id)
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    false_ids = {int(i) for i in false_ids}
+    ids = np.unique(track_id)
+    rows = {int(t): np.flatnonzero(track_id == t) for t in ids}
+    for t, r in rows.items():
+        rows[t] = r[np.argsort(stamp[r], kind='stable')]
+    ranked = sorted(rows, key=lambda t: (t not in false_ids, -rows[t].size, t))
+    labelled = set(ranked[:max_labels])
+    colour_of = {t: _PALETTE[i % len(_PALETTE)]
+                 for i, t in enumerate(t for t in ranked if t in labelled and t not in false_ids)}
+    for t in sorted(rows, key=lambda t: t in labelled):   # minor ones underneath
+        r = rows[t]
+        bad = t in false_ids
+        if t not in labelled:
+            ax.plot(x[r], y[r], 'x-' if bad else '-', color=FALSE_COLOUR if bad else MINOR_COLOUR,
+                    lw=0.6, ms=3, alpha=0.6, zorder=3)
+            continue
+        colour = FALSE_COLOUR if bad else colour_of[t]
+        ax.plot(x[r], y[r], 'x-' if bad else '.-', color=colour, lw=1.4, ms=4 if bad else 3,
+                zorder=4)
+        ax.annotate(str(t), (x[r[-1]], y[r[-1]]), xytext=(3, 3), textcoords='offset points',
+                    **_outlined(colour))
+        if vx is None or arrow_s <= 0 or r.size < 2:
+            continue
+        slot = np.floor((stamp[r] - stamp[r[0]]) / arrow_every)
+        first = r[np.concatenate(([True], slot[1:] != slot[:-1]))]
+        pick = first[:3] if first.size > 1 else r[[r.size // 2]]
+        u, v = arrow_s * np.asarray(vx)[pick], arrow_s * np.asarray(vy)[pick]
+        cut = np.minimum(1.0, MAX_ARROW / np.maximum(np.hypot(u, v), 1e-9))
+        ax.quiver(x[pick], y[pick], u * cut, v * cut, angles='xy', scale_units='xy', scale=1.0,
+                  color=colour, width=0.0035, headwidth=3.5, headlength=4,
+                  headaxislength=3.5, zorder=6)
+    return len(labelled)
+
+
+def fit_view(ax, *xy_arrays, pad: float = 1.0) -> None:
+    """Equal-aspect limits that show every finite point of ``xy_arrays`` ((n, >=2) each)."""
+    pts = [np.asarray(a, float).reshape(-1, np.shape(a)[-1])[:, :2] for a in xy_arrays
+           if a is not None and np.size(a)]
+    pts = np.vstack(pts) if pts else np.zeros((0, 2))
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if pts.shape[0] == 0:
+        return
+    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect('equal', adjustable='box')
+
+
+def tracks_legend(ax, n_tracks: int, n_labelled: int, arrow_s: float = 1.0,
+                  false: int | None = None) -> None:
+    """Legend entries for :func:`draw_tracks` (proxy artists) and the legend itself."""
+    arrows = (f'; arrow = {arrow_s:g} s of travel (at most {MAX_ARROW:g} m)' if arrow_s > 0
+              else '')
+    ax.plot([], [], '.-', color=_PALETTE[0], label=f'track, id at its end{arrows}')
+    if n_labelled < n_tracks:
+        ax.plot([], [], '-', color=MINOR_COLOUR,
+                label=f'other tracks ({n_tracks - n_labelled}, ids not shown)')
+    if false:
+        ax.plot([], [], 'x-', color=FALSE_COLOUR, label=f'false track ({false})')
+    ax.legend(loc='best', fontsize=8, framealpha=0.85)
+
+
 def tracks_figure(rows: np.ndarray, scanner: np.ndarray, path: str | Path,
                   title: str = '', background: np.ndarray | None = None,
-                  arrow_period: float = 0.4) -> Path:
+                  max_labels: int = 25) -> Path:
     """Fig. 10. ``rows`` (k, 6): stamp, id, x, y, vx, vy of confirmed tracks (odometry frame);
     ``scanner`` (n, 3) scanner poses; ``background`` (m, 2) scan points for context (e.g. the
-    first scan, odometry frame). Each track is a line coloured by id with velocity arrows
-    (one second of travel) every ``arrow_period`` seconds."""
+    first scan, odometry frame). The ``max_labels`` longest tracks are drawn in colour with
+    their id and velocity arrows (1 s of travel), the others thin and grey."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 7))
+    fig, ax = plt.subplots(figsize=(9, 8))
     if background is not None and background.shape[0]:
         ax.plot(background[:, 0], background[:, 1], '.', color='0.75', ms=1.5,
-                label='scan (first)')
-    if scanner.shape[0]:
-        ax.plot(scanner[:, 0], scanner[:, 1], color='0.5', lw=1, label='scanner')
-        ax.plot(scanner[-1, 0], scanner[-1, 1], marker='s', color='0.4', ms=6)
-    ids = np.unique(rows[:, 1]).astype(int) if rows.shape[0] else np.zeros(0, int)
-    cmap = plt.get_cmap('tab20')
-    for i, tid in enumerate(ids):
-        r = rows[rows[:, 1] == tid]
-        colour = cmap(i % 20)
-        ax.plot(r[:, 2], r[:, 3], '-', color=colour, lw=1)
-        slot = np.floor((r[:, 0] - r[0, 0]) / max(arrow_period, 1e-6))
-        a = r[np.concatenate(([True], slot[1:] != slot[:-1]))]
-        ax.quiver(a[:, 2], a[:, 3], a[:, 4], a[:, 5], color=colour, angles='xy',
-                  scale_units='xy', scale=1.0, width=0.003)
-        ax.annotate(str(tid), r[0, 2:4], fontsize=7, color=colour)
-    ax.set_aspect('equal', adjustable='datalim')
+                label='scan (first)', zorder=1)
+    draw_scanner(ax, scanner)
+    rows = np.asarray(rows, float).reshape(-1, 6)
+    n = int(np.unique(rows[:, 1]).size)
+    shown = draw_tracks(ax, rows[:, 0], rows[:, 1].astype(int), rows[:, 2], rows[:, 3],
+                        rows[:, 4], rows[:, 5], max_labels=max_labels) if n else 0
+    fit_view(ax, rows[:, 2:4], scanner, background, pad=MAX_ARROW)
     ax.set_xlabel('x (m, odometry frame)')
     ax.set_ylabel('y (m)')
-    ax.set_title(title or f'confirmed tracks ({ids.size}) with velocity (1 s of travel)')
+    ax.set_title(title or f'confirmed tracks ({n})')
     ax.grid(True, lw=0.3)
-    if scanner.shape[0] or background is not None:
-        ax.legend(loc='upper right', fontsize=8)
+    tracks_legend(ax, n, shown)
     fig.tight_layout()
     out = save_figure(fig, path)
     plt.close(fig)

@@ -103,6 +103,17 @@ class EvaluationConfig:
     stamp_tolerance: float = param(0.25, 'a track row belongs to the scan whose stamp is '
                                    'within this fraction of the median scan period',
                                    min=0.01, max=0.5)
+    walking_speed: float = param(0.3, 'annotated recordings: a person slower than this '
+                                 '(odometry frame) is "don\'t care" in the walking figures '
+                                 '(m/s)', min=0.0, max=5.0)
+    speed_window: float = param(1.0, 'annotated recordings: an annotated person\'s speed is '
+                                'fitted over this time (s)', min=0.2, max=10.0)
+    restart_speed: float = param(3.0, 'real recordings: consecutive ego-motion poses implying a '
+                                 'faster motion (m/s, or rad/s of turning) belong to different '
+                                 'ego-motion runs (a restart)', min=0.1, max=100.0)
+    restart_gap: float = param(1.0, 'real recordings: ego-motion poses further apart in time '
+                               '(no pose in between) belong to different runs (s)',
+                               min=0.1, max=3600.0)
 
 
 # ----------------------------------------------------------------------------- tables
