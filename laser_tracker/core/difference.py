@@ -90,6 +90,16 @@ class DifferenceConfig:
         'beams at a fast scan rate) is then still a change, so a walker gives a whole blob '
         'from its first scans. The memory rule still applies. 0 = paper (the previous grid '
         'alone).', min=0.0, max=10.0)
+    static_time: float = param(
+        0.0, 'Time constant (s) of the static background: where the scans hit, in the '
+        'odometry frame, the count of hits decays by e every static_time seconds. A cell '
+        'whose background count (or that of a neighbour, for registration error) reaches '
+        'static_hits is static structure and never a change. Catches structure seen from a '
+        'moving platform that the last few grids missed (grazing walls, door frames, '
+        'clutter re-sampled from a new viewpoint). 0 = off (paper).', min=0.0, max=600.0)
+    static_hits: float = param(
+        3.0, 'Background hits (decayed) from which a cell is static structure.', min=1.0,
+        max=1000.0)
     max_history: int = param(
         12, 'At most this many earlier grids are kept for memory and free_window (bounds the '
         'work at high scan rates).', min=1, max=100)
@@ -279,3 +289,65 @@ def changed_with_history(frame, stamp: float, history, pose, stack, resolution: 
     changed = free.any(axis=0)
     changed &= ~(values[:n_occ] == OCCUPIED).any(axis=0)
     return changed
+
+
+class StaticBackground:
+    """Where the scans have hit, over time, in the odometry frame (``static_time``).
+
+    A toroidal hit-count grid of ``size x size`` cells (the grid resolution): world cell
+    ``(ix, iy)`` lives in slot ``(ix mod size, iy mod size)`` with its own key, so the robot
+    can drive anywhere without scrolling and a slot reused far away reads as empty. Each slot
+    keeps a count decayed exponentially with time constant ``static_time`` and the time of
+    its last hit (decay is applied lazily when a slot is read or hit). Per scan only the
+    cells of the scan's end points are touched.
+    """
+
+    def __init__(self, resolution: float, config: DifferenceConfig, size: int = 512):
+        self.resolution = float(resolution)
+        self.tau = float(config.static_time)
+        self.threshold = float(config.static_hits)
+        self.size = int(size)
+        n = self.size * self.size
+        self.key = np.full(n, np.iinfo(np.int64).min, np.int64)
+        self.count = np.zeros(n, np.float64)
+        self.last = np.zeros(n, np.float64)
+
+    def _cells(self, xy: np.ndarray):
+        ij = np.floor(xy / self.resolution).astype(np.int64)
+        key = ij[:, 0] * 2_000_003 + ij[:, 1]
+        slot = (ij[:, 0] % self.size) * self.size + (ij[:, 1] % self.size)
+        return ij, key, slot
+
+    def counts(self, xy: np.ndarray, stamp: float, neighbourhood: int = 1) -> np.ndarray:
+        """The largest decayed count among the cells within ``neighbourhood`` cells of each
+        point ``xy`` (k, 2; odometry frame)."""
+        if xy.shape[0] == 0:
+            return np.zeros(0)
+        ij, _, _ = self._cells(xy)
+        r = np.arange(-neighbourhood, neighbourhood + 1)
+        dx, dy = np.meshgrid(r, r, indexing='ij')
+        nij = ij[:, None, :] + np.stack((dx.ravel(), dy.ravel()), axis=1)[None]
+        key = nij[..., 0] * 2_000_003 + nij[..., 1]
+        slot = (nij[..., 0] % self.size) * self.size + (nij[..., 1] % self.size)
+        mine = self.key[slot] == key
+        value = np.where(mine, self.count[slot]
+                         * np.exp(-(stamp - self.last[slot]) / self.tau), 0.0)
+        return value.max(axis=1)
+
+    def static(self, xy: np.ndarray, stamp: float) -> np.ndarray:
+        """Mask: points on static structure (see the class doc)."""
+        return self.counts(xy, stamp) >= self.threshold
+
+    def add(self, xy: np.ndarray, stamp: float) -> None:
+        """One scan's end points (odometry frame) hit their cells (once per cell)."""
+        if xy.shape[0] == 0:
+            return
+        _, key, slot = self._cells(xy)
+        slot, first = np.unique(slot, return_index=True)
+        key = key[first]
+        mine = self.key[slot] == key
+        decayed = np.where(mine, self.count[slot]
+                           * np.exp(-(stamp - self.last[slot]) / self.tau), 0.0)
+        self.key[slot] = key
+        self.count[slot] = decayed + 1.0
+        self.last[slot] = stamp

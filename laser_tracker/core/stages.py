@@ -37,9 +37,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from laser_tracker.core.blobs import BlobConfig, Blobs, segment
-from laser_tracker.core.difference import (DifferenceConfig, PoseQuality,
+from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map, pose_quality,
                                            pose_trusted, relative_motion)
+from laser_tracker.core.geometry import transform_points
 from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, \
     EgoMotionEstimator
 from laser_tracker.core.grid import GridBuilder, GridConfig, transform_grid
@@ -247,6 +248,9 @@ class Detector:
     def reset(self) -> None:
         # Earlier grids, newest first: (GridFrame, scanner pose, stamp).
         self.history: deque = deque(maxlen=self.depth)
+        d = self.difference_config
+        self.background = StaticBackground(self.grid_config.resolution, d) \
+            if d.static_time > 0 else None
         self.rules.reset()
 
     @property
@@ -257,9 +261,11 @@ class Detector:
                     blobs: BlobConfig) -> None:
         """New parameters from the next scan; a new grid geometry or memory depth drops the
         grid history."""
-        rebuild = (grid != self.grid_config
-                   or difference.memory != self.difference_config.memory
-                   or difference.max_history != self.difference_config.max_history)
+        old = self.difference_config
+        rebuild = (grid != self.grid_config or difference.memory != old.memory
+                   or difference.max_history != old.max_history
+                   or (difference.static_time, difference.static_hits)
+                   != (old.static_time, old.static_hits))
         self.grid_config, self.difference_config, self.blob_config = grid, difference, blobs
         self.rules.max_gap = difference.max_gap
         if rebuild:
@@ -310,6 +316,8 @@ class Detector:
         self.history.appendleft((frame, pose, float(scan.stamp)))
         previous = history[0][0] if history else None
         gated = not pose_trusted(quality, self.difference_config)
+        if (previous is None or gated) and self.background is not None:
+            self.background.add(transform_points(pose, frame.points), float(scan.stamp))
         if previous is None or gated:
             det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
                             gated=gated and previous is not None)
@@ -327,6 +335,13 @@ class Detector:
         changed = changed_with_history(frame, float(scan.stamp), history, pose,
                                        self.builder.stack, res, cells,
                                        self.difference_config)
+        background = self.background
+        if background is not None:
+            world = transform_points(pose, frame.points)
+            if changed.any():
+                rows = np.flatnonzero(changed)
+                changed[rows[background.static(world[rows], float(scan.stamp))]] = False
+            background.add(world, float(scan.stamp))
         d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:
