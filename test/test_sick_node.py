@@ -63,7 +63,7 @@ class Harness:
         return predicate()
 
     def call(self, client, request):
-        assert client.wait_for_service(timeout_sec=5.0)
+        assert self.spin_until(client.service_is_ready, timeout=20.0), 'no lifecycle service'
         future = client.call_async(request)
         assert self.spin_until(future.done, timeout=30.0)
         return future.result()
@@ -381,19 +381,32 @@ def test_diagnostics_run_on_wall_time_with_sim_time_and_no_clock(harness):
     assert 1 <= len(h.diagnostics) - count <= 2
 
 
-def test_frame_id_and_inverted_change_the_published_scans_at_once(harness, sim):
+def test_live_parameters_change_the_published_scans_at_once(harness, sim):
     device = sim(baud=500000)
     h = harness(baud=500000, resolution=1.0, frame_id='laser')
-    assert h.spin_until(lambda: len(h.scans) >= 3)
+    assert h.spin_until(lambda: len(h.scans) >= 5)
     assert h.scans[-1].header.frame_id == 'laser'
+    sent = sent_by_ranges(device)
+
+    def clock_offsets(msgs, reverse=False):
+        """Published stamp minus the simulator's acquisition time, per scan."""
+        return np.array([stamp(m) - sent[np.asarray(m.ranges[::-1] if reverse else m.ranges,
+                                                     np.float32).tobytes()].acquired
+                         for m in msgs])
+
+    before = clock_offsets(h.scans)
     result = h.node.set_parameters([Parameter('frame_id', value='laser_front'),
-                                    Parameter('inverted', value=True)])
+                                    Parameter('inverted', value=True),
+                                    Parameter('time_offset', value=0.5)])
     assert all(r.successful for r in result)
     count = len(h.scans)
-    assert h.spin_until(lambda: len(h.scans) >= count + 5)
+    assert h.spin_until(lambda: len(h.scans) >= count + 6)
     changed = [m for m in h.scans[count:] if m.header.frame_id == 'laser_front']
-    assert len(changed) >= 4  # at most the scan already queued keeps the old frame
+    assert len(changed) >= 5  # at most the scans already queued keep the old frame
     assert_all_published_exact(device, changed, reverse=True)
+    sent = sent_by_ranges(device)
+    after = clock_offsets(changed[2:], reverse=True)
+    assert np.median(after) - np.median(before) == pytest.approx(0.5, abs=0.01)
     assert h.node.driver.stats().reconnects == 0  # no re-initialisation for live parameters
 
 

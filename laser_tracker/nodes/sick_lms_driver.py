@@ -68,7 +68,6 @@ class SickLmsDriverNode(LifecycleNode):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        self._destroyed = True  # until fully built (destroy_node after a failed start-up)
         self.params = LiveParameters(self, NODE_NAME, self._apply_parameters)
         self.config: SickLmsConfig = self.params.sections['']
         self.driver: SickLmsDriver | None = None  # set while configured
@@ -99,9 +98,7 @@ class SickLmsDriverNode(LifecycleNode):
         if self.config.autostart:
             self.get_logger().info(f'autostart: waiting for the LMS2xx on {self.config.port}, '
                                    f'then configuring and activating')
-            self._waiter = threading.Thread(target=self._wait_for_device,
-                                            name='sick-lms-autostart', daemon=True)
-            self._waiter.start()
+            self._start_waiter()
         else:
             self.get_logger().info(f'unconfigured; waiting for a lifecycle manager '
                                    f'(ros2 lifecycle set {name} configure)')
@@ -235,11 +232,20 @@ class SickLmsDriverNode(LifecycleNode):
             self._autostart_guard.trigger()
             return
 
+    def _start_waiter(self) -> None:
+        self._waiter_stop.clear()
+        if self._stopping:
+            return
+        self._waiter = threading.Thread(target=self._wait_for_device,
+                                        name='sick-lms-autostart', daemon=True)
+        self._waiter.start()
+
     def _autostart_transitions(self) -> None:
         if self._stopping or self._ready_driver is None:
             return
         if self.lifecycle_state == 'unconfigured':
             if self.trigger_configure() != SUCCESS:
+                self._start_waiter()  # e.g. the port changed meanwhile and is not there
                 return
         if self.lifecycle_state == 'inactive':
             self.trigger_activate()
