@@ -63,10 +63,16 @@ class Harness:
         return predicate()
 
     def call(self, client, request):
-        assert self.spin_until(client.service_is_ready, timeout=20.0), 'no lifecycle service'
-        future = client.call_async(request)
-        assert self.spin_until(future.done, timeout=30.0)
-        return future.result()
+        """Call a service of the driver node; the request is sent again if no answer came
+        within 5 s (a request sent before the client and the service are matched is lost;
+        ``service_is_ready`` can stay false while a destroyed node's endpoints linger)."""
+        futures = []
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            futures.append(client.call_async(request))
+            if self.spin_until(lambda: any(f.done() for f in futures), timeout=5.0):
+                return next(f for f in futures if f.done()).result()
+        raise AssertionError(f'no answer from {client.srv_name}')
 
     def transition(self, label: str) -> bool:
         """``ros2 lifecycle set /sick_lms_driver <label>``: True if it succeeded."""
@@ -333,7 +339,7 @@ def test_configure_fails_on_a_missing_port_and_the_node_survives(harness, sim):
     assert h.transition('configure') and h.transition('activate')
     assert h.spin_until(lambda: len(h.scans) >= 5)
     assert_all_published_exact(device, h.scans)
-    status, values = h.latest_diagnostics()
+    status, _ = h.latest_diagnostics()
     assert status.level == DiagnosticStatus.OK, status.message
 
 

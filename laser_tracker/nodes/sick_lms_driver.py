@@ -68,7 +68,11 @@ class SickLmsDriverNode(LifecycleNode):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        self.params = LiveParameters(self, NODE_NAME, self._apply_parameters)
+        try:
+            self.params = LiveParameters(self, NODE_NAME, self._apply_parameters)
+        except BaseException:  # a bad parameter: leave no half-built node in the graph
+            super().destroy_node()
+            raise
         self.config: SickLmsConfig = self.params.sections['']
         self.driver: SickLmsDriver | None = None  # set while configured
         self._factory = ros_factory()
@@ -118,6 +122,10 @@ class SickLmsDriverNode(LifecycleNode):
         if driver is None:
             if self._stopping:
                 return FAILURE
+            cfg = self.config
+            self.get_logger().info(
+                f'configuring: opening {cfg.port} ({cfg.scan_angle} deg / {cfg.resolution:g} '
+                f'deg, {cfg.units}, {cfg.baud} baud)')
             driver = self._new_driver()
             self.driver = driver
             if self._stopping:  # Ctrl-C between the check and the assignment
@@ -243,10 +251,9 @@ class SickLmsDriverNode(LifecycleNode):
     def _autostart_transitions(self) -> None:
         if self._stopping or self._ready_driver is None:
             return
-        if self.lifecycle_state == 'unconfigured':
-            if self.trigger_configure() != SUCCESS:
-                self._start_waiter()  # e.g. the port changed meanwhile and is not there
-                return
+        if self.lifecycle_state == 'unconfigured' and self.trigger_configure() != SUCCESS:
+            self._start_waiter()  # e.g. the port changed meanwhile and is not there
+            return
         if self.lifecycle_state == 'inactive':
             self.trigger_activate()
 
