@@ -132,16 +132,11 @@ class SickLmsDriverNode(LifecycleNode):
                 driver.interrupt()
             try:
                 driver.connect(start_output=False)
-            except SickError as exc:
+            except Exception as exc:  # noqa: BLE001 - SickError, or a bug (rclpy hides it)
                 self.driver = None
                 driver.close()
                 self._configure_failed(exc, retrying=False)
-                return FAILURE
-            except Exception as exc:  # noqa: BLE001 - a bug: say so, rclpy would not
-                self.driver = None
-                driver.close()
-                self.get_logger().error(f'configure failed: {type(exc).__name__}: {exc}')
-                return ERROR
+                return FAILURE if isinstance(exc, SickError) else ERROR
         self.driver = driver
         self._configure_error = ''
         self._last_log = ('', 0.0)
@@ -165,9 +160,13 @@ class SickLmsDriverNode(LifecycleNode):
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
         result = super().on_deactivate(state)  # no scan is published from here on
-        if self.driver is not None:
-            self.driver.stop(close_port=False)  # stops the device's output, port stays open
-            self.get_logger().info(f'deactivated: {self.config.port} output stopped')
+        driver = self.driver
+        if driver is not None:
+            driver.stop(close_port=False)  # stops the device's output, port stays open
+            s = driver.stats()
+            self.get_logger().info(f'deactivated: {driver.config.port} output stopped'
+                                   if s.state == 'idle' else
+                                   f'deactivated: {driver.config.port} {s.state}')
         self._clear_queue()
         return result
 
@@ -388,6 +387,8 @@ class SickLmsDriverNode(LifecycleNode):
         elif lifecycle == 'inactive':
             level = DiagnosticStatus.WARN
             message = f'inactive: {cfg.port} open, output stopped (activate to stream)'
+            if s is not None and s.state != 'idle':  # lost while active, then deactivated
+                message = f'inactive: {s.state}' + (f': {s.last_error}' if s.last_error else '')
         elif lifecycle == 'unconfigured' and self._configure_error:
             level = DiagnosticStatus.ERROR
             retry = (f'; retrying every {self.config.reconnect_period:g} s'
