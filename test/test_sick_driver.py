@@ -153,6 +153,30 @@ def test_line_rate_pacing_at_38400(rig):
     assert errors.min() > -0.5e-3 and errors.max() < P.MIRROR_PERIOD + 20e-3, errors
 
 
+def test_set_up_without_output_then_start_and_stop_the_output_keeping_the_port(rig):
+    """The lifecycle node's steps: configure = connect(start_output=False), activate = start,
+    deactivate = stop(close_port=False), activate again = start (no new set-up)."""
+    sim, driver, col = rig({'baud': 9600}, {'baud': 500000}, start_driver=False)
+    driver.connect(start_output=False)
+    assert driver.stats().state == 'idle' and driver.stats().baud == 500000
+    assert sim.baud == 500000 and not sim.device.streaming
+    time.sleep(0.2)
+    assert sim.counters.scans_sent == 0 and not col.scans
+    driver.start()
+    assert col.wait(5), col.events
+    assert sim.device.streaming
+    driver.stop(close_port=False)
+    assert not sim.device.streaming and driver.stats().state == 'idle'
+    assert col.events[-1][0] == 'idle'
+    requests = sim.counters.requests
+    driver.start()  # the device is still set up: only "start continuous output" is sent
+    assert col.wait_more(5), col.events
+    assert sim.counters.requests == requests + 1 and driver.stats().reconnects == 0
+    check_exact(sim, col.scans)
+    driver.stop()
+    assert not sim.device.streaming and col.events[-1][0] == 'stopped'
+
+
 # ----------------------------------------------------------------------------- faults
 
 

@@ -2,8 +2,9 @@
 
 * :func:`run` starts one or more nodes in one executor and stops them within a second or two
   of Ctrl-C or SIGTERM, every time: rclpy's own signal handling is replaced by a flag that
-  the spin loop checks, cleanup runs under a watchdog, and a start-up configuration error is
-  one line on stderr with exit status 2 (no traceback).
+  the spin loop checks (and a node's ``request_stop()``, if it has one, is called so that a
+  long callback such as a lifecycle configure gives up), cleanup runs under a watchdog, and
+  a start-up configuration error is one line on stderr with exit status 2 (no traceback).
 * :func:`guarded` wraps a subscription callback so that no message can kill a node: anything
   a publisher on the same topic can send that the conversions or the stage cannot use is a
   throttled warning (with a count) and the node carries on.
@@ -81,18 +82,23 @@ def run(factories: Callable | Iterable[Callable], args=None, name: str | None = 
     name = name or os.path.basename(sys.argv[0] or 'laser_tracker')
     params.PARAMETER_FILES[:] = parameter_files(args)
     stop = threading.Event()
+    nodes = []
 
     def on_signal(signum, frame):
         if stop.is_set():            # a second Ctrl-C: leave at once
             os._exit(130)
         stop.set()
+        for node in nodes:           # a callback in progress (e.g. a configure) gives up
+            try:
+                getattr(node, 'request_stop', lambda: None)()
+            except Exception:  # noqa: BLE001 - stopping regardless
+                pass
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     status = 0
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor()
-    nodes = []
     try:
         for factory in factories:
             nodes.append(factory())

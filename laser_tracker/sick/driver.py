@@ -134,7 +134,7 @@ class SickScan:
 class DriverStats:
     """A snapshot of the driver's state and counters (for diagnostics and tests)."""
 
-    state: str  # disconnected / initialising / streaming / stopped
+    state: str  # disconnected / initialising / idle / streaming / stopped
     port: str
     baud: int | None
     device_type: str
@@ -153,7 +153,8 @@ class DriverStats:
     last_error: str
 
 
-STATES = ('disconnected', 'initialising', 'streaming', 'stopped')
+#: ``idle``: the port is open and the device set up, its continuous output stopped.
+STATES = ('disconnected', 'initialising', 'idle', 'streaming', 'stopped')
 
 
 # ------------------------------------------------------------------------------ driver
@@ -162,6 +163,11 @@ STATES = ('disconnected', 'initialising', 'streaming', 'stopped')
 class SickLmsDriver:
     """The LMS2xx over pyserial. Use :meth:`start`/:meth:`stop` for the background reader,
     or :meth:`connect`, :meth:`read_once` and :meth:`close` step by step (tests, tools).
+
+    A managed (lifecycle) node splits the set-up: ``connect(start_output=False)`` opens the
+    port and initialises the device without starting its output (state ``idle``);
+    :meth:`start` then starts the output and reads; ``stop(close_port=False)`` stops the
+    reader and the device's output and keeps the port open; :meth:`close` releases the port.
 
     ``on_scan(scan)`` and ``on_event(state, message)`` are called from the reader thread;
     they must be quick and must not call back into the driver.
@@ -182,6 +188,8 @@ class SickLmsDriver:
         self._lock = threading.Lock()
         self._state = 'disconnected'
         self._streaming = False
+        self._ready = False  # the port is open and the device set up (output on or off)
+        self._close_on_stop = True
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._measuring_mode = P.MEASURING_MODES[0]
@@ -197,7 +205,8 @@ class SickLmsDriver:
 
     # --------------------------------------------------------------- background use
     def start(self) -> None:
-        """Start the reader thread: it connects (retrying every ``reconnect_period``),
+        """Start the reader thread: it connects (retrying every ``reconnect_period``) or,
+        after ``connect(start_output=False)``, starts the output of the set-up device,
         streams, and recovers; errors are reported through ``on_event``."""
         if self._thread is not None:
             raise RuntimeError('driver already started')
@@ -205,14 +214,24 @@ class SickLmsDriver:
         self._thread = threading.Thread(target=self._run, name='sick-lms-reader', daemon=True)
         self._thread.start()
 
-    def stop(self, timeout: float = 3.0) -> None:
-        """Stop the reader; it stops the device's output and closes the port."""
+    def stop(self, timeout: float = 3.0, close_port: bool = True) -> None:
+        """Stop the reader; it stops the device's output and closes the port (with
+        ``close_port=False`` the port stays open and the device set up, state ``idle``)."""
+        self._close_on_stop = close_port
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
-            self._thread = None
-        else:
+            if not self._thread.is_alive():
+                self._thread = None
+        elif close_port:
             self.close()
+        else:
+            self.stop_output()
+
+    def interrupt(self) -> None:
+        """Make a :meth:`connect` in progress (in any thread) give up at its next read;
+        safe from a signal handler. Until :meth:`start`, later commands give up too."""
+        self._stop.set()
 
     @property
     def running(self) -> bool:
@@ -230,7 +249,10 @@ class SickLmsDriver:
         while not self._stop.is_set():
             if not self._streaming:
                 try:
-                    self.connect()
+                    if self._ready:
+                        self.start_output()
+                    else:
+                        self.connect()
                 except SickError as exc:
                     self.close()
                     if self._stop.is_set():
@@ -247,8 +269,11 @@ class SickLmsDriver:
                 with self._lock:
                     self._reconnects += 1
                 self._fail(exc)
-        self.close(stop_output=True)
-        self._set_state('stopped', 'driver stopped')
+        if self._close_on_stop or self._port is None:
+            self.close(stop_output=True)
+            self._set_state('stopped', 'driver stopped')
+        else:
+            self.stop_output()
 
     def _fail(self, exc: Exception) -> None:
         with self._lock:
@@ -264,8 +289,9 @@ class SickLmsDriver:
             pass
 
     # ------------------------------------------------------------------ connection
-    def connect(self) -> None:
-        """Open the port and initialise the device until it streams; raises SickError."""
+    def connect(self, start_output: bool = True) -> None:
+        """Open the port and initialise the device until it streams (or, without
+        ``start_output``, until it is set up: state ``idle``); raises SickError."""
         self._set_state('initialising', f'opening {self.config.port}')
         if self._port is None:
             self._open()
@@ -275,11 +301,43 @@ class SickLmsDriver:
             raise DeviceLostError(f'{self.config.port}: {exc}') from None
         except P.ProtocolError as exc:  # e.g. a measuring mode without ranges (0x3F)
             raise SickError(f'{self.config.port}: unusable device reply: {exc}') from None
+        self._ready = True
+        if start_output:
+            self.start_output()
+        else:
+            self._set_state('idle', f'{self.config.port}: ready at {self._baud} baud, '
+                            f'{self._describe_setup()}')
+
+    def _describe_setup(self) -> str:
+        return (f'{self.config.scan_angle} deg / {self.config.resolution:g} deg, '
+                f'{self.config.units} ({self._device_type or "unknown type"})')
+
+    def start_output(self) -> None:
+        """Start the continuous output of the set-up device; raises SickError."""
+        cfg = self.config
+        try:
+            started = self._transact(P.start_continuous(), P.REPLY_MODE)
+        except (serial.SerialException, OSError, termios.error) as exc:
+            raise DeviceLostError(f'{cfg.port}: {exc}') from None
+        if not started.ok:
+            raise CommandRejectedError(f'{cfg.port}: continuous output refused '
+                                       f'({started.describe()})')
         self._streaming = True
         self._last_scan_mono = time.monotonic()
-        self._set_state('streaming', f'{self.config.port}: streaming at {self._baud} baud, '
-                        f'{self.config.scan_angle} deg / {self.config.resolution:g} deg, '
-                        f'{self.config.units} ({self._device_type or "unknown type"})')
+        self._set_state('streaming', f'{cfg.port}: streaming at {self._baud} baud, '
+                        f'{self._describe_setup()}')
+
+    def stop_output(self) -> None:
+        """Ask the device to stop its continuous output; the port stays open (``idle``).
+        Without an answer the device counts as lost: the next start sets it up again."""
+        if self._port is None or not self._streaming:
+            return
+        try:
+            self._transact(P.stop_continuous(), P.REPLY_MODE, tries=2, abortable=False)
+        except (SickError, serial.SerialException, OSError, termios.error):
+            self._ready = False
+        self._streaming = False
+        self._set_state('idle', f'{self.config.port}: output stopped')
 
     def _open(self) -> None:
         port = self.config.port
@@ -297,6 +355,7 @@ class SickLmsDriver:
 
     def close(self, stop_output: bool = False) -> None:
         """Close the port; with ``stop_output`` first ask the device to stop streaming."""
+        self._ready = False
         port = self._port
         if port is None:
             self._streaming = False
@@ -359,10 +418,6 @@ class SickLmsDriver:
         self._measuring_mode = P.measuring_mode(block[P.CONFIG_MODE_BYTE])
         status = self._transact(P.request_status(), P.REPLY_STATUS)
         self._status_byte = status.status.raw
-        started = self._transact(P.start_continuous(), P.REPLY_MODE)
-        if not started.ok:
-            raise CommandRejectedError(f'{cfg.port}: continuous output refused '
-                                       f'({started.describe()})')
 
     def detect_baud(self) -> int:
         """Find the device's rate: at each rate send "stop output" and wait for its reply
@@ -529,7 +584,7 @@ class SickLmsDriver:
                 rate = (len(arrivals) - 1) / max(arrivals[-1] - arrivals[0], 1e-9)
             return DriverStats(
                 state=self._state, port=self.config.port,
-                baud=self._baud if self._state == 'streaming' else None,
+                baud=self._baud if self._state in ('idle', 'streaming') else None,
                 device_type=self._device_type, scans=self._sequence, telegrams=c.telegrams,
                 crc_errors=c.crc_errors, length_errors=c.length_errors,
                 bytes_discarded=c.bytes_discarded, naks=self._naks,
