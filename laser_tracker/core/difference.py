@@ -91,15 +91,21 @@ class DifferenceConfig:
         'from its first scans. The memory rule still applies. 0 = paper (the previous grid '
         'alone).', min=0.0, max=10.0)
     static_time: float = param(
-        0.0, 'Time constant (s) of the static background: where the scans hit, in the '
-        'odometry frame, the count of hits decays by e every static_time seconds. A cell '
-        'whose background count (or that of a neighbour, for registration error) reaches '
-        'static_hits is static structure and never a change. Catches structure seen from a '
-        'moving platform that the last few grids missed (grazing walls, door frames, '
-        'clutter re-sampled from a new viewpoint). 0 = off (paper).', min=0.0, max=600.0)
-    static_hits: float = param(
-        3.0, 'Background hits (decayed) from which a cell is static structure.', min=1.0,
-        max=1000.0)
+        0.0, 'Time constant (s) of the static background: for every cell of the odometry '
+        'frame, how long the scans have seen it occupied, decaying by e every static_time '
+        'seconds. A cell (or a neighbour, for registration error) seen occupied for '
+        'static_occupied seconds is static structure and never a change. Catches structure '
+        'seen from a moving platform that the last few grids missed (grazing walls, door '
+        'frames, clutter re-sampled from a new viewpoint). 0 = off (paper).', min=0.0,
+        max=600.0)
+    static_occupied: float = param(
+        0.75, 'Seconds of (decayed) occupancy from which a background cell is static '
+        'structure; in seconds, not scans, so that 4 Hz and 75 Hz scanners agree. Each scan '
+        'adds the time since the previous one (at most static_max_step).', min=0.01,
+        max=600.0)
+    static_max_step: float = param(
+        0.5, 'Largest time (s) one scan adds to a background cell (after a gap).',
+        min=0.01, max=10.0)
     max_history: int = param(
         12, 'At most this many earlier grids are kept for memory and free_window (bounds the '
         'work at high scan rates).', min=1, max=100)
@@ -294,18 +300,20 @@ def changed_with_history(frame, stamp: float, history, pose, stack, resolution: 
 class StaticBackground:
     """Where the scans have hit, over time, in the odometry frame (``static_time``).
 
-    A toroidal hit-count grid of ``size x size`` cells (the grid resolution): world cell
-    ``(ix, iy)`` lives in slot ``(ix mod size, iy mod size)`` with its own key, so the robot
-    can drive anywhere without scrolling and a slot reused far away reads as empty. Each slot
-    keeps a count decayed exponentially with time constant ``static_time`` and the time of
-    its last hit (decay is applied lazily when a slot is read or hit). Per scan only the
-    cells of the scan's end points are touched.
+    A toroidal grid of ``size x size`` cells (the grid resolution): world cell ``(ix, iy)``
+    lives in slot ``(ix mod size, iy mod size)`` with its own key, so the robot can drive
+    anywhere without scrolling and a slot reused far away reads as empty. Each slot keeps the
+    time it has been seen occupied, decayed exponentially with time constant ``static_time``,
+    and the time of its last hit (decay is applied lazily when a slot is read or hit). Per
+    scan only the cells of the scan's end points are touched.
     """
 
     def __init__(self, resolution: float, config: DifferenceConfig, size: int = 512):
         self.resolution = float(resolution)
         self.tau = float(config.static_time)
-        self.threshold = float(config.static_hits)
+        self.threshold = float(config.static_occupied)
+        self.max_step = float(config.static_max_step)
+        self.previous: float | None = None
         self.size = int(size)
         n = self.size * self.size
         self.key = np.full(n, np.iinfo(np.int64).min, np.int64)
@@ -339,7 +347,11 @@ class StaticBackground:
         return self.counts(xy, stamp) >= self.threshold
 
     def add(self, xy: np.ndarray, stamp: float) -> None:
-        """One scan's end points (odometry frame) hit their cells (once per cell)."""
+        """One scan's end points (odometry frame) hit their cells (once per cell), each
+        adding the time since the previous scan (at most ``max_step``)."""
+        step = self.max_step if self.previous is None else \
+            min(max(stamp - self.previous, 0.0), self.max_step)
+        self.previous = stamp
         if xy.shape[0] == 0:
             return
         _, key, slot = self._cells(xy)
@@ -349,5 +361,5 @@ class StaticBackground:
         decayed = np.where(mine, self.count[slot]
                            * np.exp(-(stamp - self.last[slot]) / self.tau), 0.0)
         self.key[slot] = key
-        self.count[slot] = decayed + 1.0
+        self.count[slot] = decayed + step
         self.last[slot] = stamp

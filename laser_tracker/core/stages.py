@@ -264,8 +264,9 @@ class Detector:
         old = self.difference_config
         rebuild = (grid != self.grid_config or difference.memory != old.memory
                    or difference.max_history != old.max_history
-                   or (difference.static_time, difference.static_hits)
-                   != (old.static_time, old.static_hits))
+                   or (difference.static_time, difference.static_occupied,
+                       difference.static_max_step)
+                   != (old.static_time, old.static_occupied, old.static_max_step))
         self.grid_config, self.difference_config, self.blob_config = grid, difference, blobs
         self.rules.max_gap = difference.max_gap
         if rebuild:
