@@ -587,15 +587,19 @@ def point_stamped_msg(factory: MessageFactory, stamp: float, frame_id: str, x: f
 # ------------------------------------------------------------------------------------ blobs
 
 MARKER_CYLINDER = 3
+MARKER_POINTS = 8
 
 
 def blobs_to_marker_array(factory: MessageFactory, blobs):
-    """``core.blobs.Blobs`` -> the ``blobs`` topic MarkerArray (schema in core/pipeline.py).
+    """``core.blobs.Blobs`` -> the ``blobs`` topic MarkerArray (schema in README.md).
 
-    A DELETEALL marker, one CYLINDER per blob (ns ``blobs``, id = index, position = centroid,
-    scale.x = scale.y = extent, text = JSON ``{"cells": n, "structure": angle or null}``),
-    and one ARROW (ns ``scanner``, id 0) whose pose is the scanner pose and whose text is JSON
-    ``{"restarted": bool}`` (the ego-motion restarted its pose chain: tracks are void).
+    A DELETEALL marker, one CYLINDER per motion blob (ns ``blobs``, id = index, position =
+    centroid, scale.x = scale.y = extent, text = JSON ``{"cells": n, "structure": angle or
+    null}``), one CYLINDER per person detection (ns ``persons``, id = index, text = JSON
+    ``{"confidence": c}``), one POINTS marker (ns ``segments``, id 0) whose points are the
+    scan's compact segments, and one ARROW (ns ``scanner``, id 0) whose pose is the scanner
+    pose and whose text is JSON ``{"restarted": bool}`` (the ego-motion restarted its pose
+    chain: tracks are void).
     """
     f = factory
     stamp, frame_id = float(blobs.stamp), blobs.frame_id
@@ -622,6 +626,23 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
             id=i, type=MARKER_CYLINDER, action=MARKER_ADD, pose=pose(*blobs.xy[i]),
             scale=f.make('geometry_msgs/msg/Vector3', x=extent, y=extent, z=0.1),
             color=color(1.0, 0.4, 0.0, 0.8), text=text))
+    for i, (px, py) in enumerate(np.asarray(blobs.persons, float).reshape(-1, 2)):
+        text = json.dumps({'confidence': round(float(blobs.person_confidence[i]), 4)},
+                          separators=(',', ':'))
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='persons',
+            id=i, type=MARKER_CYLINDER, action=MARKER_ADD, pose=pose(px, py),
+            scale=f.make('geometry_msgs/msg/Vector3', x=0.5, y=0.5, z=1.0),
+            color=color(0.9, 0.1, 0.9, 0.6), text=text))
+    segments = np.asarray(blobs.segments, float).reshape(-1, 2)
+    if segments.shape[0]:
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
+            ns='segments', id=0, type=MARKER_POINTS, action=MARKER_ADD, pose=pose(0.0, 0.0),
+            scale=f.make('geometry_msgs/msg/Vector3', x=0.05, y=0.05, z=0.05),
+            color=color(0.5, 0.5, 0.5, 0.6),
+            points=[f.make('geometry_msgs/msg/Point', x=float(a), y=float(b), z=0.0)
+                    for a, b in segments]))
     x, y, theta = (float(v) for v in blobs.origin)
     markers.append(f.make(
         'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='scanner',
@@ -642,6 +663,7 @@ def blobs_from_marker_array(msg):
 
     rows, origin, stamp, frame_id, restarted = [], None, math.nan, 'odom', False
     stamp_ns = None
+    persons, segments = [], []
     for m in msg.markers:
         if m.action != MARKER_ADD:
             continue
@@ -662,13 +684,26 @@ def blobs_from_marker_array(msg):
             structure = extra.get('structure')
             rows.append((m.pose.position.x, m.pose.position.y, int(extra.get('cells', 1)),
                          float(m.scale.x), math.nan if structure is None else float(structure)))
+        elif m.ns == 'persons' and m.type == MARKER_CYLINDER:
+            try:
+                extra = json.loads(m.text) if m.text else {}
+            except json.JSONDecodeError:
+                extra = {}
+            persons.append((m.pose.position.x, m.pose.position.y,
+                            number(extra if isinstance(extra, dict) else {}, 'confidence',
+                                   1.0)))
+        elif m.ns == 'segments' and m.type == MARKER_POINTS:
+            segments.extend((p.x, p.y) for p in m.points)
     if origin is None:
         raise ValueError('MarkerArray has no scanner marker: not a blobs message')
     arr = np.array(rows, dtype=float).reshape(-1, 5)
+    people = np.array(persons, dtype=float).reshape(-1, 3)
     return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
                  cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
                  structure=arr[:, 4].copy(), frame_id=frame_id, restarted=restarted,
-                 stamp_ns=stamp_ns)
+                 stamp_ns=stamp_ns, persons=people[:, :2].copy(),
+                 person_confidence=people[:, 2].copy(),
+                 segments=np.array(segments, dtype=float).reshape(-1, 2))
 
 
 # ----------------------------------------------------------------------------------- tracks

@@ -180,3 +180,80 @@ def test_bad_blobs_are_dropped_with_a_warning(caplog):
         r = tr.update(frame(5 * DT, (np.nan, 1.0), (1e6, 0.0), (2.0, 0.0)))
     assert tr.stats['blobs_dropped'] == 2 and len(r.hypotheses) >= 1
     assert 'not finite' in caplog.text
+
+
+def people(t, *persons, confidence=0.9, segments=(), blobs_xy=()):
+    b = frame(t, *blobs_xy)
+    b.persons = np.array(persons, float).reshape(-1, 2)
+    b.person_confidence = np.full(b.persons.shape[0], confidence)
+    b.segments = np.array(segments, float).reshape(-1, 2)
+    return b
+
+
+def test_a_standing_person_detected_by_shape_is_tracked_and_not_moving():
+    tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
+    for k in range(8):
+        r = tr.update(people(k * DT, (2.0, 1.0)))
+    h = r.hypotheses
+    assert len(h) == 1 and h.confirmed[0] and h.track_id[0] == 1
+    report = tr.report(7 * DT)
+    assert report.kind[0] == 'person' and not report.moving[0]
+    assert np.allclose(report.position[0], (2.0, 1.0), atol=0.05)
+
+
+def test_the_legs_of_a_detected_person_do_not_split_the_track():
+    """Leg blobs around a person detection are that person: one track, not three."""
+    tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
+    ids = set()
+    for k in range(12):
+        t = k * DT
+        x = 1.0 + 1.0 * t
+        r = tr.update(people(t, (x, 0.0), blobs_xy=[(x + 0.12, 0.1), (x - 0.1, -0.1)]))
+        ids |= set(r.hypotheses.track_id[r.hypotheses.confirmed].tolist())
+    assert len(ids) == 1
+    rep = tr.report(11 * DT)
+    (i,) = np.flatnonzero(rep.confirmed)
+    assert rep.kind[i] == 'person' and rep.moving[i]
+    assert np.allclose(rep.velocity[i], (1.0, 0.0), atol=0.2)
+
+
+def test_a_moving_object_that_is_no_person_is_still_tracked_by_motion():
+    tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
+    walk(tr, 8)
+    rep = tr.report(7 * DT)
+    assert rep.confirmed.any() and set(rep.kind[rep.confirmed]) == {'object'}
+
+
+def test_an_object_that_stops_keeps_its_id_and_walks_on():
+    cfg = HypothesisConfig(stop_gate=0.4)
+    for config, keeps in ((cfg, True), (HypothesisConfig(), False)):
+        tr = HypothesisTracker(config, KalmanConfig())
+        r = walk(tr, 8)[-1]
+        (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
+        stop = (1.0 + 7 * DT, 0.0)
+        for k in range(8, 40):                 # stands for 6.4 s: no blobs, still occupied
+            r = tr.update(people(k * DT, segments=[stop, (5.0, 5.0)]))
+        alive = tid in r.hypotheses.track_id.tolist()
+        assert alive is keeps
+        if keeps:
+            rep = tr.report(39 * DT)
+            i = rep.track_id.tolist().index(tid)
+            assert not rep.moving[i] and np.allclose(rep.position[i], stop)
+            for k in range(40, 48):            # walks on from where it stood
+                t = k * DT
+                r = tr.update(frame(t, (stop[0] + 1.0 * (t - 39 * DT), 0.0)))
+            confirmed = r.hypotheses.track_id[r.hypotheses.confirmed].tolist()
+            assert tid in confirmed
+            rep = tr.report(47 * DT)
+            assert rep.moving[rep.track_id.tolist().index(tid)]
+
+
+def test_a_flickering_blob_still_creates_its_hypothesis_with_a_creation_window():
+    def flicker(config):
+        tr = HypothesisTracker(config, KalmanConfig())
+        for k in range(16):                    # the blob is seen in every other scan only
+            t = k * DT / 2
+            tr.update(frame(t, *([(1.0 + t, 0.0)] if k % 2 == 0 else [])))
+        return tr.stats['created']
+    assert flicker(HypothesisConfig()) == 0
+    assert flicker(HypothesisConfig(creation_window=0.3)) > 0

@@ -72,7 +72,15 @@ class BlobConfig:
 
 @dataclass
 class Blobs:
-    """The blobs of one scan: the detection -> tracking interface (plain arrays)."""
+    """What detection tells tracking about one scan (plain arrays, odometry frame):
+
+    * the motion blobs of the difference map (paper Sec. 6): ``xy``, ``cells``, ``extent``,
+      ``structure``;
+    * the people found by the shape of their legs (``persons``, ``person_confidence``),
+      when the person detector runs;
+    * the scan's compact segments (``segments``: centroids of the jump-distance clusters
+      narrower than a metre), occupied space that keeps a stopped object's track alive.
+    """
 
     stamp: float
     origin: np.ndarray                    # (3,) scanner pose x, y, theta in the odometry frame
@@ -84,6 +92,9 @@ class Blobs:
     dropped: int = field(default=0)       # blobs dropped by max_blobs
     restarted: bool = False               # the pose chain restarted here: tracks are void
     stamp_ns: int | None = None           # the scan's exact stamp (integer ns), when known
+    persons: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    person_confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def count(self) -> int:

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -117,13 +118,37 @@ class HypothesisConfig:
     moving_speed: float = param(0.2, 'A track slower than this (m/s) is reported as not '
                                 'moving (the "moving" flag of the tracks).', min=0.0,
                                 max=10.0)
+    creation_window: float = param(
+        0.0, 'A new blob pairs with the blobs of the most recent earlier frame within this '
+        'many seconds that has one in reach (max_speed x dt), not only the previous frame: '
+        'a blob that flickers (seen in every other scan of a fast scanner) still creates '
+        'its hypothesis. 0 = paper (the previous frame).', min=0.0, max=5.0)
+    person_gate: float = param(
+        0.6, 'A person detection (legs) within this distance (m) of a prediction supports '
+        'that hypothesis (each hypothesis takes its nearest).', min=0.01, max=5.0)
+    person_radius: float = param(
+        0.45, 'Motion blobs within this distance (m) of a person detection are that '
+        'person (their legs): they neither split nor create hypotheses.', min=0.0, max=5.0)
+    person_create_confidence: float = param(
+        0.5, 'A person detection that no hypothesis claims creates one when its confidence '
+        'is at least this.', min=0.0, max=1.0)
+    person_kind_samples: int = param(
+        2, 'Supports by person detections after which a track is of kind person.', min=1,
+        max=1000)
+    stop_gate: float = param(
+        0.0, 'A confirmed hypothesis with no supporting blob or person but a compact scan '
+        'segment within this distance (m) of its position has stopped: it stays there, '
+        'its velocity measured as zero, without losing weight, as long as the object stays '
+        'in the scans; when it walks on, its blobs support it again (same id). 0 = paper '
+        '(it coasts and fades).', min=0.0, max=2.0)
     max_gap: float = param(2.0, 'A gap between frames longer than this (s) drops every '
                            'hypothesis (predictions are meaningless).', min=0.01, max=3600.0)
 
 
 _ID, _T, _WEIGHT, _SAMPLES, _CONFIRMED, _SUPPORTED, _BORN = 0, 5, 8, 9, 10, 11, 12
 _STATE, _VEL, _POS, _START = slice(1, 5), slice(3, 5), slice(6, 8), slice(13, 15)
-_P0 = 15
+_PERSONS, _STOPPED = 15, 16
+_P0 = 17
 
 
 class HypothesisArrays:
@@ -135,8 +160,9 @@ class HypothesisArrays:
     ``t_state`` (the stamp of the last supporting blob, ``kalman.TrackFilter``), ``P``
     (k, d, d), ``position`` (k, 2) the estimate at the current frame, ``velocity`` (k, 2),
     ``weight`` 0..100, ``samples``, ``confirmed``, ``supported`` (a blob supported it this
-    frame), ``born`` (creation stamp) and ``start`` (k, 2) where it was created (the later
-    blob of its creation pair).
+    frame), ``born`` (creation stamp), ``start`` (k, 2) where it was created (the later
+    blob of its creation pair), ``person_samples`` (supports by person detections) and
+    ``stopped`` (held by the occupancy of a stopped object this frame).
     """
 
     __slots__ = ('data', 'dim')
@@ -185,6 +211,8 @@ class HypothesisArrays:
 
     start = property(lambda self: self.data[:, _START],
                      lambda self, v: self.data.__setitem__((slice(None), _START), v))
+    person_samples = property(lambda self: self.data[:, _PERSONS].astype(np.int64))
+    stopped = property(lambda self: self.data[:, _STOPPED] > 0.5)
 
     @property
     def P(self) -> np.ndarray:
@@ -200,7 +228,8 @@ class Tracks:
     """What the tracker reports at one frame (the ``tracks`` topic): one row per hypothesis.
 
     ``covariance`` (k, 2, 2): of ``position``; ``moving``: speed at least
-    ``hypotheses.moving_speed``; ``kind``: what found it (``object``: motion).
+    ``hypotheses.moving_speed`` and not stopped; ``kind``: ``person`` once person detections
+    supported it ``person_kind_samples`` times, else ``object`` (found by its motion).
     """
 
     stamp: float
@@ -256,6 +285,8 @@ class HypothesisTracker:
         self.hyp = HypothesisArrays.empty(self.filter.dim)
         self.prev_xy = np.zeros((0, 2))
         self.prev_stamp: float | None = None
+        # Earlier frames for creation (newest last): (stamp, motion blobs, persons).
+        self.recent: deque = deque(maxlen=64)
 
     def report(self, stamp: float) -> Tracks:
         """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated)."""
@@ -265,8 +296,9 @@ class HypothesisTracker:
                       velocity=h.velocity.copy(),
                       covariance=self.filter.position_covariance(h.P, h.t_state, stamp),
                       weight=h.weight.copy(), samples=h.samples, confirmed=h.confirmed,
-                      moving=speed2 >= self.config.moving_speed ** 2,
-                      kind=np.full(len(h), 'object', dtype=object))
+                      moving=(speed2 >= self.config.moving_speed ** 2) & ~h.stopped,
+                      kind=np.where(h.person_samples >= self.config.person_kind_samples,
+                                    'person', 'object').astype(object))
 
     def reconfigure(self, config: HypothesisConfig, kalman: KalmanConfig) -> bool:
         """Use new parameters from the next frame. Returns True when the hypotheses must be
@@ -312,7 +344,7 @@ class HypothesisTracker:
 
     # ------------------------------------------------------------------------ the frame
     def update(self, blobs: Blobs) -> FrameResult:
-        """One frame: the blobs of one scan (odometry frame) -> updated hypotheses."""
+        """One frame: the measurements of one scan (odometry frame) -> updated hypotheses."""
         c = self.config
         t = float(blobs.stamp)
         xy, ok = self._clean(blobs)
@@ -321,57 +353,71 @@ class HypothesisTracker:
             structure = structure[ok]
         if structure.shape[0] != xy.shape[0]:
             structure = np.full(xy.shape[0], np.nan)
+        persons, confidence = _finite_rows(blobs.persons, blobs.person_confidence)
+        segments, _ = _finite_rows(blobs.segments)
 
         hyp = self.hyp
-        k, b = len(hyp), xy.shape[0]
-        if k == 0 and (b == 0 or self.prev_xy.shape[0] == 0):
-            self.prev_xy, self.prev_stamp = xy, t
-            return self._result(t, np.zeros(0, np.intp), 0, False)
-
-        unit = c.distance_unit
-        if k:
-            pred = self.filter.predict(hyp.state, hyp.t_state, t)
-            dist = np.sqrt(((pred[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)) \
-                if b else np.zeros((k, 0))
-        else:
-            pred = np.zeros((0, 2))
-            dist = np.zeros((0, b))
-
+        k = len(hyp)
+        pred = self.filter.predict(hyp.state, hyp.t_state, t) if k else np.zeros((0, 2))
+        # People first: each hypothesis takes its nearest person detection within the gate;
+        # the motion blobs of a detected person (its legs) are that person.
+        person_of = np.full(k, -1, np.intp)
+        if persons.shape[0]:
+            if k:
+                dp = _distances(pred, persons)
+                near = dp.argmin(axis=1)
+                person_of = np.where(dp[np.arange(k), near] <= c.person_gate, near, -1)
+            if xy.shape[0] and c.person_radius > 0:
+                legs = _distances(xy, persons).min(axis=1) <= c.person_radius
+                xy, structure = xy[~legs], structure[~legs]
+        b = xy.shape[0]
+        dist = _distances(pred, xy)
         # Equation 2 on the predictions of the existing hypotheses.
         if b:
-            b_weight = 100.0 - np.maximum(c.blob_radius - dist / unit, 0.0).sum(axis=0)
+            b_weight = 100.0 - np.maximum(c.blob_radius - dist / c.distance_unit,
+                                          0.0).sum(axis=0)
             b_weight = np.clip(b_weight, 0.0, 100.0)
             new_blob = b_weight > c.new_blob_threshold
         else:
-            b_weight = np.zeros(0)
-            new_blob = np.zeros(0, bool)
+            b_weight, new_blob = np.zeros(0), np.zeros(0, bool)
 
         parts = []
-        # Gating, splitting and Equation 3.
-        gate = dist <= c.gate
+        by_person = person_of >= 0
+        if by_person.any():
+            rows = np.flatnonzero(by_person)
+            parts.append(self._support_person(hyp.take(rows), pred[rows],
+                                              persons[person_of[rows]], t))
+        # Gating, splitting and Equation 3 for the others.
+        gate = (dist <= c.gate) & ~by_person[:, None]
         hi, bi = np.nonzero(gate)
         if hi.size:
             parts.append(self._support(hyp, pred, dist, hi, bi, xy, structure, t))
-        unsupported = ~gate.any(axis=1) if k else np.zeros(0, bool)
+        unsupported = ~gate.any(axis=1) & ~by_person if k else np.zeros(0, bool)
         if unsupported.any():
             dt_frame = t - self.prev_stamp if self.prev_stamp is not None else 0.0
-            parts.append(self._coast(hyp.take(unsupported), pred[unsupported], dt_frame))
+            rest = np.flatnonzero(unsupported)
+            stopped = self._stopped(hyp, rest, segments)
+            if stopped.any():
+                parts.append(self._hold(hyp.take(rest[stopped]), segments, t))
+            if (~stopped).any():
+                moving_on = rest[~stopped]
+                parts.append(self._coast(hyp.take(moving_on), pred[moving_on], dt_frame))
 
-        # Creation from new blobs and the previous frame's blobs.
         created = 0
-        if new_blob.any() and self.prev_xy.shape[0] and self.prev_stamp is not None:
-            dt = t - self.prev_stamp
-            new_idx = np.flatnonzero(new_blob)
-            disp = np.sqrt(((xy[new_idx, None, :] - self.prev_xy[None, :, :]) ** 2).sum(axis=2))
-            pair = (disp <= c.max_speed * dt) & (disp >= c.min_displacement)
-            ni, pi = np.nonzero(pair)
-            if ni.size:
-                if ni.size > c.max_hypotheses:   # a burst: the pairs of the strongest blobs
-                    order = np.lexsort((disp[ni, pi], -b_weight[new_idx[ni]]))
-                    ni, pi = ni[order[:c.max_hypotheses]], pi[order[:c.max_hypotheses]]
-                born = self._create(xy[new_idx[ni]], self.prev_xy[pi], dt, t,
-                                    structure[new_idx[ni]])
-                created = len(born)
+        if new_blob.any():
+            born = self._create_from_blobs(xy[new_blob], structure[new_blob],
+                                           b_weight[new_blob], t)
+            created += len(born)
+            parts.append(born)
+        if persons.shape[0]:
+            claimed = np.zeros(persons.shape[0], bool)
+            claimed[person_of[by_person]] = True
+            if k:
+                claimed |= (_distances(pred, persons) <= c.person_gate).any(axis=0)
+            fresh = ~claimed & (confidence >= c.person_create_confidence)
+            if fresh.any():
+                born = self._create_from_persons(persons[fresh], t)
+                created += len(born)
                 parts.append(born)
 
         hyp = HypothesisArrays.concat(parts) if parts else HypothesisArrays.empty(
@@ -402,6 +448,7 @@ class HypothesisTracker:
         self.stats['confirmed'] += int(newly.size)
         self.hyp = hyp
         self.prev_xy, self.prev_stamp = xy, t
+        self.recent.append((t, xy, persons))
         return self._result(t, newly, created, bounded)
 
     def _result(self, t, newly, created, bounded) -> FrameResult:
@@ -426,6 +473,7 @@ class HypothesisTracker:
         data[:, _WEIGHT] = self._wall(weight, state[:, 2:], structure[bi])
         data[:, _SAMPLES] += 1.0
         data[:, _SUPPORTED] = 1.0
+        data[:, _STOPPED] = 0.0
         # Identity on a split: the copy nearest its prediction continues the parent.
         if hi.size > 1 and np.any(hi[1:] == hi[:-1]):
             order = np.lexsort((d, hi))
@@ -446,6 +494,118 @@ class HypothesisTracker:
         data[:, _POS] = pred
         data[:, _WEIGHT] = np.maximum(data[:, _WEIGHT] - self.config.coast_rate * dt, 0.0)
         data[:, _SUPPORTED] = 0.0
+        data[:, _STOPPED] = 0.0
+        return hyp
+
+    def _earlier(self, t: float, which: int):
+        """Earlier frames within reach for creation, newest first: (dt, positions); only the
+        previous frame unless ``creation_window`` is set (paper)."""
+        window = self.config.creation_window
+        for k, frame in enumerate(reversed(self.recent)):
+            dt = t - frame[0]
+            if dt <= 0.0:
+                continue
+            if k > 0 and dt > window:
+                break
+            yield dt, frame[which]
+
+    def _create_from_blobs(self, new_xy, structure, weight, t) -> HypothesisArrays:
+        """Paper Sec. 7: a new blob creates a hypothesis with every blob of the previous frame
+        (with ``creation_window``: of the most recent earlier frame that has one) within
+        ``max_speed * dt`` and at least ``min_displacement`` away."""
+        c = self.config
+        todo = np.ones(new_xy.shape[0], bool)
+        new, prev, dts, struct, order_key = [], [], [], [], []
+        for dt, earlier in self._earlier(t, 1):
+            if not todo.any():
+                break
+            if earlier.shape[0] == 0:
+                continue
+            idx = np.flatnonzero(todo)
+            disp = _distances(new_xy[idx], earlier)
+            pair = (disp <= c.max_speed * dt) & (disp >= c.min_displacement)
+            ni, pi = np.nonzero(pair)
+            if ni.size:
+                new.append(new_xy[idx[ni]])
+                prev.append(earlier[pi])
+                dts.append(np.full(ni.size, dt))
+                struct.append(structure[idx[ni]])
+                order_key.append(np.column_stack((disp[ni, pi], -weight[idx[ni]])))
+                todo[idx[ni]] = False
+        if not new:
+            return HypothesisArrays.empty(self.filter.dim)
+        new_xy, prev_xy = np.concatenate(new), np.concatenate(prev)
+        dt, structure, key = np.concatenate(dts), np.concatenate(struct), \
+            np.concatenate(order_key)
+        if new_xy.shape[0] > c.max_hypotheses:    # a burst: the pairs of the strongest blobs
+            keep = np.lexsort((key[:, 0], key[:, 1]))[:c.max_hypotheses]
+            new_xy, prev_xy, dt, structure = new_xy[keep], prev_xy[keep], dt[keep], \
+                structure[keep]
+        return self._create(new_xy, prev_xy, dt, t, structure)
+
+    def _create_from_persons(self, persons, t) -> HypothesisArrays:
+        """A person detection that no hypothesis claims starts one: its velocity from the
+        nearest person detection of an earlier frame within reach, else zero."""
+        c = self.config
+        prev = persons.copy()
+        dt = np.ones(persons.shape[0])
+        todo = np.ones(persons.shape[0], bool)
+        for age, earlier in self._earlier(t, 2):
+            if not todo.any():
+                break
+            if earlier.shape[0] == 0:
+                continue
+            idx = np.flatnonzero(todo)
+            d = _distances(persons[idx], earlier)
+            near = d.argmin(axis=1)
+            ok = d[np.arange(idx.size), near] <= c.max_speed * age
+            prev[idx[ok]] = earlier[near[ok]]
+            dt[idx[ok]] = age
+            todo[idx[ok]] = False
+        out = self._create(persons, prev, dt, t, np.full(persons.shape[0], np.nan))
+        out.data[:, _PERSONS] = 1.0
+        return out
+
+    def _support_person(self, hyp: HypothesisArrays, pred, persons, t) -> HypothesisArrays:
+        """Support by a person detection: Eq. 3 with its distance, Kalman, one more sample."""
+        c = self.config
+        d = np.hypot(*(persons - pred).T)
+        state, P, position = self.filter.correct(hyp.state, hyp.P, hyp.t_state, persons, t)
+        data = hyp.data
+        data[:, _STATE] = state
+        hyp.P = P
+        data[:, _POS] = position
+        data[:, _T] = t
+        data[:, _WEIGHT] = np.clip(data[:, _WEIGHT] + c.w_inc - c.w_dec / c.distance_unit * d,
+                                   0.0, 100.0)
+        data[:, _SAMPLES] += 1.0
+        data[:, _PERSONS] += 1.0
+        data[:, _SUPPORTED] = 1.0
+        data[:, _STOPPED] = 0.0
+        return hyp
+
+    def _stopped(self, hyp: HypothesisArrays, rows, segments) -> np.ndarray:
+        """Mask over ``rows``: confirmed hypotheses with a scan segment within ``stop_gate``
+        of their position (the object stopped and is still there)."""
+        gate = self.config.stop_gate
+        if gate <= 0 or segments.shape[0] == 0 or rows.size == 0:
+            return np.zeros(rows.size, bool)
+        near = _distances(hyp.position[rows], segments).min(axis=1) <= gate
+        return near & hyp.confirmed[rows]
+
+    def _hold(self, hyp: HypothesisArrays, segments, t) -> HypothesisArrays:
+        """A stopped object: at the nearest segment, velocity measured as zero, no weight
+        lost, no new sample (it is not moving evidence)."""
+        d = _distances(hyp.position, segments)
+        at = segments[d.argmin(axis=1)]
+        state, P = self.filter.hold(hyp.state, hyp.P, at)
+        data = hyp.data
+        data[:, _STATE] = state
+        hyp.P = P
+        data[:, _POS] = at
+        data[:, _T] = t
+        data[:, _SUPPORTED] = 0.0
+        data[:, _STOPPED] = 1.0
         return hyp
 
     def _create(self, new_xy, prev_xy, dt, t, structure) -> HypothesisArrays:
@@ -536,3 +696,24 @@ def _components(k: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if np.array_equal(new, label):
             return label
         label = new
+
+
+def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Euclidean distances (len(a), len(b)) between two sets of 2D points."""
+    if a.shape[0] == 0 or b.shape[0] == 0:
+        return np.zeros((a.shape[0], b.shape[0]))
+    d = a[:, None, :] - b[None, :, :]
+    return np.sqrt(np.einsum('ijk,ijk->ij', d, d))
+
+
+def _finite_rows(xy, values=None):
+    """Rows of ``xy`` (n, 2) and ``values`` (n,) that are finite (others dropped)."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    ok = np.isfinite(xy).all(axis=1)
+    if values is None:
+        return xy[ok], None
+    values = np.asarray(values, dtype=float).reshape(-1)
+    if values.shape[0] != xy.shape[0]:
+        values = np.ones(xy.shape[0])
+    ok &= np.isfinite(values)
+    return xy[ok], values[ok]

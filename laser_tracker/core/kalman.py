@@ -157,6 +157,23 @@ class TrackFilter:
             return self.config.position_variance * np.eye(2) + P * dt * dt
         return (P[:, :2, :2] + dt * (P[:, :2, 2:] + P[:, 2:, :2]) + dt * dt * P[:, 2:, 2:])
 
+    def hold(self, state: np.ndarray, P: np.ndarray,
+             position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A stopped object at ``position`` (k, 2): the velocity measured as zero."""
+        k = state.shape[0]
+        if self.paper:
+            v, Pp = predict_velocity(state[:, 2:], P, self.config.q)
+            v, P = update_velocity(v, Pp, np.zeros((k, 2)), self.config.r)
+            return np.hstack((position, v)), P
+        x = state.copy()
+        x[:, :2] = position
+        S = P[:, 2:, 2:] + self.config.cv_position_noise * np.eye(2)
+        K = P[:, :, 2:] @ _inv2(S)
+        x = x + (K @ (-x[:, 2:])[:, :, None])[:, :, 0]
+        x[:, :2] = position
+        P = P - K @ P[:, 2:, :]
+        return x, P
+
     def coast(self, P: np.ndarray) -> np.ndarray:
         """A frame without support: the prediction step only (paper: P- = P + Q).
 
