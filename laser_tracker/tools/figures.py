@@ -202,11 +202,16 @@ def scan_figure(result, resolution: float, path: str | Path, title: str = '') ->
     diff = np.full(grid.shape + (3,), 0.0)
     diff[previous == UNKNOWN] = 0.6           # no valid data before: grey (Fig. 5c)
     if det.difference is not None:
-        diff[det.difference] = 1.0            # changes: white
+        diff[det.difference] = 1.0            # Eq. 1 against the previous grid: white
+    made = np.zeros(grid.shape, bool)
+    if det.changed_cells is not None and det.changed_cells.size:
+        made.ravel()[det.changed_cells] = True
+        diff[made] = (1.0, 0.15, 0.0)          # the cells that made the blobs: red
     fig, axes = plt.subplots(2, 2, figsize=(11, 11))
     panels = [(axes[0, 0], _grid_image(grid), '(a) current grid'),
               (axes[0, 1], _grid_image(previous), '(b) previous grid, current frame'),
-              (axes[1, 0], diff, '(c) difference map (Eq. 1)')]
+              (axes[1, 0], diff, f'(c) difference map: Eq. 1 (white), the {int(made.sum())} '
+                                 f'cells that made the blobs (red)')]
     for ax, img, name in panels:
         # grid[ix, iy]: x forward is the image's horizontal axis.
         ax.imshow(np.transpose(img, (1, 0, 2)), origin='lower', extent=extent,
@@ -234,6 +239,8 @@ def scan_figure(result, resolution: float, path: str | Path, title: str = '') ->
     if b.count:
         loc = b.local()
         ax.plot(loc[:, 0], loc[:, 1], 'o', mfc='none', color='tab:green', ms=6)
+        axes[1, 0].plot(loc[:, 0], loc[:, 1], 'o', mfc='none', color='tab:green', ms=9,
+                        mew=1.5)
     ax.set_title('(d) hypotheses: velocity (1 s), x = confirmed, o = blob')
     # Show the observed part of the grid (a 180 deg scanner sees half of it).
     seen = np.argwhere((grid != UNKNOWN) | (previous != UNKNOWN))
