@@ -96,8 +96,14 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'difference.memory': 0,            # Eq. 1 against the previous grid alone
         'difference.motion_depth': 0.0,    # no platform-motion depth test
         'difference.pose_gate': False,     # every scan reports, whatever its ego-motion quality
+        'difference.free_window': 0.0,     # free before = free in the previous grid
+        'difference.static_time': 0.0,     # no static background
         'blobs.position': 'changed',       # the blob is its changed cells
         'blobs.centre_offset': 0.0,
+    },
+    'tracking': {
+        'hypotheses.creation_window': 0.0,  # creation pairs with the previous frame only
+        'hypotheses.ride_along_speed': 0.0,  # no ride-along test
     },
 }
 

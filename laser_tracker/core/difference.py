@@ -84,14 +84,14 @@ class DifferenceConfig:
         'and hit in the next is then not a change. 0 = paper (previous grid only).',
         min=0, max=50)
     free_window: float = param(
-        0.0, 'Seconds of earlier grids (the previous one always included) in any of which a '
+        0.3, 'Seconds of earlier grids (the previous one always included) in any of which a '
         'cell seen FREE (by a deep enough beam, see motion_depth) counts as free before: a '
         'cell the previous scan did not see (in the moving object\'s own shadow, between '
         'beams at a fast scan rate) is then still a change, so a walker gives a whole blob '
         'from its first scans. The memory rule still applies. 0 = paper (the previous grid '
         'alone).', min=0.0, max=10.0)
     static_time: float = param(
-        0.0, 'Time constant (s) of the static background: for every cell of the odometry '
+        10.0, 'Time constant (s) of the static background: for every cell of the odometry '
         'frame, how long the scans have seen it occupied, decaying by e every static_time '
         'seconds. A cell (or a neighbour, for registration error) seen occupied for '
         'static_occupied seconds is static structure and never a change. Catches structure '

@@ -119,10 +119,19 @@ class HypothesisConfig:
                                 'moving (the "moving" flag of the tracks).', min=0.0,
                                 max=10.0)
     creation_window: float = param(
-        0.0, 'A new blob pairs with the blobs of the most recent earlier frame within this '
+        0.3, 'A new blob pairs with the blobs of the most recent earlier frame within this '
         'many seconds that has one in reach (max_speed x dt), not only the previous frame: '
         'a blob that flickers (seen in every other scan of a fast scanner) still creates '
         'its hypothesis. 0 = paper (the previous frame).', min=0.0, max=5.0)
+    ride_along_speed: float = param(
+        0.3, 'A hypothesis that is not a person and moves with the scanner (its velocity '
+        'within this many m/s of the scanner\'s, while the scanner moves at least '
+        'ride_along_min_speed) is not confirmed: a patch that travels with the scanner is '
+        'almost always an artefact (glass or a mirror at normal incidence, the robot\'s '
+        'own parts). 0 = paper (off).', min=0.0, max=5.0)
+    ride_along_min_speed: float = param(
+        0.2, 'The scanner speed (m/s) from which ride_along_speed applies.', min=0.0,
+        max=10.0)
     person_gate: float = param(
         0.6, 'A person detection (legs) within this distance (m) of a prediction supports '
         'that hypothesis (each hypothesis takes its nearest).', min=0.01, max=5.0)
@@ -287,6 +296,7 @@ class HypothesisTracker:
         self.prev_stamp: float | None = None
         # Earlier frames for creation (newest last): (stamp, motion blobs, persons).
         self.recent: deque = deque(maxlen=64)
+        self.prev_origin: np.ndarray | None = None
 
     def report(self, stamp: float) -> Tracks:
         """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated)."""
@@ -439,6 +449,8 @@ class HypothesisTracker:
             hyp, was_confirmed = hyp.take(top), was_confirmed[top]
         self._bound_active = bounded
         ready = hyp.samples >= c.confirm_samples
+        if c.ride_along_speed > 0:
+            ready &= ~self._riding_along(hyp, blobs, t)
         if c.confirm_min_speed > 0:
             ready &= (hyp.velocity ** 2).sum(axis=1) >= c.confirm_min_speed ** 2
         if c.confirm_min_travel > 0:
@@ -449,7 +461,22 @@ class HypothesisTracker:
         self.hyp = hyp
         self.prev_xy, self.prev_stamp = xy, t
         self.recent.append((t, xy, persons))
+        self.prev_origin = np.asarray(blobs.origin, dtype=float)[:2]
         return self._result(t, newly, created, bounded)
+
+    def _riding_along(self, hyp: HypothesisArrays, blobs: Blobs, t: float) -> np.ndarray:
+        """Mask: hypotheses (not persons) moving with the scanner (``ride_along_speed``)."""
+        c = self.config
+        origin = np.asarray(blobs.origin, dtype=float)[:2]
+        prev = getattr(self, 'prev_origin', None)
+        if prev is None or self.prev_stamp is None or t <= self.prev_stamp or \
+                not np.isfinite(origin).all():
+            return np.zeros(len(hyp), bool)
+        v_scanner = (origin - prev) / (t - self.prev_stamp)
+        if np.hypot(*v_scanner) < c.ride_along_min_speed:
+            return np.zeros(len(hyp), bool)
+        relative = np.hypot(*(hyp.velocity - v_scanner).T)
+        return (relative < c.ride_along_speed) & (hyp.person_samples < c.person_kind_samples)
 
     def _result(self, t, newly, created, bounded) -> FrameResult:
         return FrameResult(stamp=t, hypotheses=self.hyp, newly_confirmed=newly,
