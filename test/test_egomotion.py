@@ -461,24 +461,22 @@ def test_odometry_buffer_gap_and_restart():
 
 def test_adaptive_noise_recovers_a_per_step_and_per_metre_model():
     rng = np.random.default_rng(11)
-    noise = AdaptiveNoise((1e-4, 0.0, 0.0), (1e-4, 0.0, 0.0), memory=400, weight=5.0,
+    noise = AdaptiveNoise((1e-4, 0.0, 0.0), (1e-4, 0.0, 0.0), memory=5000, weight=5.0,
                           clip=4.0)
-    icp_var = (1e-6, 1e-6, 1e-8)
-    # truth: 2 cm per step + 10 % per metre on x and y; 1 deg per radian turned
-    for _ in range(4000):
-        d = rng.uniform(0.0, 1.0)
+    icp_var = (1e-5, 1e-5, 1e-7)
+    # truth: 2 cm per step + 5 % per metre on x and y; 1 deg per step + 2 deg per radian
+    for _ in range(20000):
+        d = rng.uniform(0.0, 0.8)
         a = rng.uniform(-0.5, 0.5)
-        sxy2 = 0.02 ** 2 + (0.1 * d) ** 2
-        sth2 = (DEG * a) ** 2
-        err = (rng.normal(0.0, math.sqrt(sxy2 + icp_var[0])),
-               rng.normal(0.0, math.sqrt(sxy2 + icp_var[1])),
-               rng.normal(0.0, math.sqrt(sth2 + icp_var[2])))
+        sxy2 = 0.02 ** 2 + (0.05 * d) ** 2
+        sth2 = DEG ** 2 + (2 * DEG * a) ** 2
+        err = rng.normal(0.0, 1.0, 3) * np.sqrt([sxy2 + icp_var[0], sxy2 + icp_var[1],
+                                                 sth2 + icp_var[2]])
         noise.update((d, 0.0, a), err, icp_var)
-    for d, a in ((0.0, 0.0), (0.5, 0.2), (1.0, 0.5)):
+    for d, a in ((0.0, 0.0), (0.4, 0.25), (0.8, 0.5)):
         vxy, vth = noise.variance((d, 0.0, a))
-        assert math.sqrt(vxy) == pytest.approx(math.hypot(0.02, 0.1 * d), rel=0.15)
-        if a:
-            assert math.sqrt(vth) == pytest.approx(DEG * a, rel=0.2)
+        assert math.sqrt(vxy) == pytest.approx(math.hypot(0.02, 0.05 * d), rel=0.1)
+        assert math.sqrt(vth) == pytest.approx(DEG * math.hypot(1.0, 2 * a), rel=0.1)
 
 
 def test_adaptive_noise_resists_outliers():

@@ -403,9 +403,7 @@ class AdaptiveNoise:
     (noise per step, per metre, per radian). Every accepted, fully constrained match gives a
     disagreement ``e`` between the prediction and the ICP motion; ``e^2`` minus the ICP's own
     variance is an unbiased sample of the prediction's variance. The coefficients are the
-    least-squares fit to these samples (weighted by the inverse square of their predicted
-    variance, as a squared residual's spread grows with it) with exponential forgetting
-    (``memory`` samples),
+    least-squares fit to these samples with exponential forgetting (``memory`` samples),
     regularised towards the fixed model ``c0`` with the weight of ``weight`` samples, and
     kept non-negative; a sample beyond ``clip`` predicted sigmas is clipped there (a false
     match must not blow the estimate up; a real change passes in a few steps since each
@@ -418,9 +416,9 @@ class AdaptiveNoise:
         self.forget = 1.0 - 1.0 / max(float(memory), 1.0)
         self.weight = float(weight)
         self.clip2 = float(clip) ** 2
-        self._gram = ([[0.0] * 3 for _ in range(3)], [[0.0] * 3 for _ in range(3)])
+        self._gram = [[0.0] * 3 for _ in range(3)]
         self._rhs = ([0.0] * 3, [0.0] * 3)
-        self._f2 = ([0.0] * 3, [0.0] * 3)
+        self._f2 = [0.0] * 3
         self.count = 0.0
         self._dirty = False
         self._updates = 0
@@ -456,22 +454,16 @@ class AdaptiveNoise:
         ex2 = min(0.5 * float(error[0] * error[0] + error[1] * error[1]),
                   self.clip2 * (vxy + ix)) - ix
         et2 = min(float(error[2] * error[2]), self.clip2 * (vth + it)) - it
-        # weighted least squares: a squared residual's spread grows with its variance
-        wx = 1.0 / (vxy + ix) ** 2
-        wt = 1.0 / (vth + it) ** 2
         g = self.forget
-        (gx, gt), (rx, rt), (fx, ft) = self._gram, self._rhs, self._f2
+        gram, (rx, rt), f2 = self._gram, self._rhs, self._f2
         for i in range(3):
             fi = f[i]
-            rowx, rowt = gx[i], gt[i]
+            row = gram[i]
             for j in range(3):
-                ff = fi * f[j]
-                rowx[j] = g * rowx[j] + wx * ff
-                rowt[j] = g * rowt[j] + wt * ff
-            rx[i] = g * rx[i] + wx * fi * ex2
-            rt[i] = g * rt[i] + wt * fi * et2
-            fx[i] = g * fx[i] + wx * fi * fi
-            ft[i] = g * ft[i] + wt * fi * fi
+                row[j] = g * row[j] + fi * f[j]
+            rx[i] = g * rx[i] + fi * ex2
+            rt[i] = g * rt[i] + fi * et2
+            f2[i] = g * f2[i] + fi * fi
         self.count = g * self.count + 1.0
         self._dirty = True
 
@@ -479,13 +471,11 @@ class AdaptiveNoise:
         self._dirty = False
         self._updates = 0
         n = max(self.count, 1e-12)
-        coef = []
-        for gram, rhs, f2, c0 in zip(self._gram, self._rhs, self._f2, self.c0):
-            pen = [self.weight * v / n for v in f2]
-            top = max(pen) + 1e-300
-            pen = [p + 1e-9 * top for p in pen]
-            coef.append(_nonnegative_ridge(gram, rhs, pen, c0))
-        self.coef = tuple(coef)
+        pen = [self.weight * v / n for v in self._f2]
+        top = max(pen) + 1e-300
+        pen = [p + 1e-9 * top for p in pen]
+        self.coef = tuple(_nonnegative_ridge(self._gram, rhs, pen, c0)
+                          for rhs, c0 in zip(self._rhs, self.c0))
 
 
 def _nonnegative_ridge(gram, rhs, pen, c0) -> tuple[float, float, float]:
