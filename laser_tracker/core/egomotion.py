@@ -154,6 +154,9 @@ class EgoMotionConfig:
         5.0, 'Weight of the fixed odom_sigma_* / cv_sigma_* model in the adapted noise, in '
         'matches: it dominates the first few matches and regularises directions the data '
         'do not inform.', min=0.0, max=100000.0)
+    adaptive_clip: float = param(
+        3.0, 'A disagreement beyond this many predicted sigmas counts as this many (false '
+        'matches and odometry glitches do not blow the estimate up).', min=1.0, max=100.0)
     prior_max_ratio: float = param(
         10.0, 'The prediction\'s information (odometry or constant velocity) is at most this '
         'multiple of the match\'s, along each of x, y and heading: a match always counts, so '
@@ -163,9 +166,6 @@ class EgoMotionConfig:
         5.0, 'A match that disagrees with the prediction by more than this many combined '
         'sigmas (Mahalanobis distance) overrides it: the prediction\'s weight falls with the '
         'square of the excess (a wheel slip shows). 0 = plain fusion.', min=0.0, max=1000.0)
-    adaptive_clip: float = param(
-        3.0, 'A disagreement beyond this many predicted sigmas counts as this many (false '
-        'matches and odometry glitches do not blow the estimate up).', min=1.0, max=100.0)
     # --- platform limits
     max_translation_speed: float = param(
         2.0, 'Platform maximum speed (m/s): faster matches and odometry steps are rejected.',
@@ -638,7 +638,7 @@ class EgoMotionEstimator:
                             coarse_stride=c.coarse_stride)
             why = self._check(res)
             if not why:
-                icp_pose, info_icp, partial, why, lam = self._fuse(res, pred, lam)
+                icp_pose, info_icp, partial, why, lam_used = self._fuse(res, pred, lam)
             if not why:
                 motion_icp = between(self._pose, icp_pose)
                 speed = self._too_fast(motion_icp, dt)
@@ -660,7 +660,7 @@ class EgoMotionEstimator:
         reseeded = False
         if icp_pose is not None and not why:
             motion = between(self._pose, icp_pose)
-            cov = _inverse(info_icp + lam)
+            cov = _inverse(info_icp + lam_used)
             if not partial and c.adaptive_prior:
                 self._adapt(res, info_icp, inc, cv)
             if partial and inc is not None:
@@ -705,8 +705,8 @@ class EgoMotionEstimator:
             self._map.clear()
             self._lost = 0
             self._add_to_map(pts)
-        elif not coasting and self._moved_since_key_scan():
-            self._add_to_map(pts)
+        elif source != SOURCE_CONSTANT_VELOCITY and self._moved_since_key_scan():
+            self._add_to_map(pts)  # placed by ICP or odometry (a guess would pollute the map)
         self.stats[source] += 1
         return EgoMotionEstimate(stamp=t, pose=self._pose.copy(), motion=motion,
                                  covariance=cov, source=source, reason=reason, dt=dt,
@@ -882,7 +882,7 @@ class EgoMotionEstimator:
             if c.prior_gate > 0.0:
                 # a converged, well-overlapping match far outside the prediction's noise: the
                 # prediction is what failed (a wheel slip): it stops counting
-                m2 = float(d @ np.linalg.solve(np.linalg.inv(info) + np.linalg.inv(lam), d))
+                m2 = _mahalanobis2(info, np.diag(lam), d)
                 if m2 > c.prior_gate ** 2:
                     lam = lam * (c.prior_gate ** 2 / m2) ** 2
         pose = compose(pose, np.linalg.solve(info + lam, lam @ d))
@@ -907,6 +907,23 @@ def _inverse_diagonal(m):
     if not det > 0.0:
         return None
     return (ca / det, cd / det, cf / det)
+
+
+def _mahalanobis2(info, lam_diag, d) -> float:
+    """``d^T (info^-1 + diag(lam_diag)^-1)^-1 d`` for a symmetric 3x3 ``info`` (plain floats:
+    it runs on every scan); inf when ``info`` is singular."""
+    (a, b, c), (_, e, f), (_, _, i) = info.tolist()
+    ca, cb, cc = e * i - f * f, c * f - b * i, b * f - c * e
+    det = a * ca + b * cb + c * cc
+    if not det > 0.0:
+        return math.inf
+    s = [[ca / det, cb / det, cc / det],
+         [cb / det, (a * i - c * c) / det, (b * c - a * f) / det],
+         [cc / det, (b * c - a * f) / det, (a * e - b * b) / det]]
+    for k in range(3):
+        s[k][k] += 1.0 / float(lam_diag[k])
+    sol = _solve_small(s, [float(v) for v in d])
+    return math.inf if sol is None else float(sol[0] * d[0] + sol[1] * d[1] + sol[2] * d[2])
 
 
 def _inverse(info) -> np.ndarray:

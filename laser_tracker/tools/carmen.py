@@ -341,9 +341,6 @@ def _spread_equal_stamps(stamps: np.ndarray, path, lines, kind: str, strict: boo
                  '(printed with too few digits?): spread evenly up to the next stamp',
                  int(same.size))
     out = stamps.astype(float).copy()
-    steps = np.diff(stamps)
-    positive = steps[steps > 0]
-    typical = float(np.median(positive)) if positive.size else 0.01
     n = stamps.size
     i = 0
     while i < n:
@@ -351,8 +348,10 @@ def _spread_equal_stamps(stamps: np.ndarray, path, lines, kind: str, strict: boo
         while j + 1 < n and stamps[j + 1] == stamps[i]:
             j += 1
         if j > i:
-            nxt = stamps[j + 1] if j + 1 < n else stamps[i] + typical * (j - i + 1)
-            width = (nxt - stamps[i]) if nxt > stamps[i] else typical * (j - i + 1)
+            if j + 1 < n and stamps[j + 1] > stamps[i]:
+                width = stamps[j + 1] - stamps[i]
+            else:  # the last run: the log's mean spacing per line so far
+                width = (j - i + 1) * ((stamps[i] - stamps[0]) / i if i else 0.01)
             out[i:j + 1] = stamps[i] + width * np.arange(j - i + 1) / (j - i + 1)
         i = j + 1
     return out
