@@ -1,5 +1,5 @@
 """Ego-motion (odometry prior + point-to-line ICP): synthetic scans of known motion, bad
-input, and the accuracy protocol of issue 3 on the real CARMEN logs."""
+input, the adaptive prior, coasting, and the accuracy protocol on the real CARMEN logs."""
 from __future__ import annotations
 
 import logging
@@ -670,13 +670,13 @@ def test_real_log_good_odometry_is_trusted(real_results):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    'issue 3 absolute targets not all reached: measured (seed 0, defaults) intel '
+    'absolute accuracy targets not all reached: measured (seed 0, defaults) intel '
     '2.017/5.804 cm, 0.314/1.138 deg; aces 2.353/7.121 cm, 0.240/0.775 deg (median/p95). '
     'Converged ICP against 5 scans placed at the reference poses, started 5 mm / 0.2 deg '
     'from the reference, lands as far from it (intel 1.90 cm / 0.272 deg, aces 2.36 / 7.09 '
     'cm median / p95; `bench egomotion --oracle`)'))
 @pytest.mark.parametrize('case', REAL_CASES[:2])
-def test_real_log_meets_issue_targets(real_results, case):
+def test_real_log_meets_the_accuracy_targets(real_results, case):
     ours = real_results[case]['ours']
     misses = [f'{key} {value:.4g} > {limit}' for key, value, limit in (
         ('trans_med', ours['trans_med'], 0.02), ('trans_p95', ours['trans_p95'], 0.06),

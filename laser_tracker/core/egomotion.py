@@ -430,8 +430,8 @@ class AdaptiveNoise:
         return self._variance(motion)
 
     def _variance(self, motion) -> tuple[float, float]:
-        d2 = motion[0] * motion[0] + motion[1] * motion[1]
-        a2 = motion[2] * motion[2]
+        d2 = float(motion[0] * motion[0] + motion[1] * motion[1])
+        a2 = float(motion[2] * motion[2])
         cx, ct = self.coef
         return (max(cx[0] + cx[1] * d2 + cx[2] * a2, 1e-10),
                 max(ct[0] + ct[1] * d2 + ct[2] * a2, 1e-12))
