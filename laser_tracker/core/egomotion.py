@@ -420,13 +420,9 @@ class AdaptiveNoise:
         self._rhs = ([0.0] * 3, [0.0] * 3)
         self._f2 = [0.0] * 3
         self.count = 0.0
-        self._dirty = False
-        self._updates = 0
 
     def variance(self, motion) -> tuple[float, float]:
         """``(var_xy, var_theta)`` of a prediction ``motion`` (x, y, theta)."""
-        if self._dirty:
-            self._solve()
         return self._variance(motion)
 
     def _variance(self, motion) -> tuple[float, float]:
@@ -437,17 +433,15 @@ class AdaptiveNoise:
                 max(ct[0] + ct[1] * d2 + ct[2] * a2, 1e-12))
 
     def information(self, motion) -> np.ndarray:
+        """The diagonal (x, y, theta) of the information of a prediction ``motion``."""
         vxy, vth = self.variance(motion)
-        return np.diag([1.0 / vxy, 1.0 / vxy, 1.0 / vth])
+        return np.array([1.0 / vxy, 1.0 / vxy, 1.0 / vth])
 
     def update(self, motion, error, icp_variance) -> None:
         """One disagreement ``error`` (x, y, theta) of the prediction ``motion`` with an ICP
         motion of variance ``icp_variance`` (x, y, theta)."""
         f = (1.0, float(motion[0] * motion[0] + motion[1] * motion[1]),
              float(motion[2] * motion[2]))
-        self._updates += 1
-        if self._dirty and self._updates >= 8:  # a model nobody asks for is refitted now
-            self._solve()                      # and then, to clip against a recent fit
         vxy, vth = self._variance(motion)
         ix = 0.5 * float(icp_variance[0] + icp_variance[1])
         it = float(icp_variance[2])
@@ -455,21 +449,22 @@ class AdaptiveNoise:
                   self.clip2 * (vxy + ix)) - ix
         et2 = min(float(error[2] * error[2]), self.clip2 * (vth + it)) - it
         g = self.forget
+        _, d2, a2 = f
         gram, (rx, rt), f2 = self._gram, self._rhs, self._f2
-        for i in range(3):
-            fi = f[i]
-            row = gram[i]
-            for j in range(3):
-                row[j] = g * row[j] + fi * f[j]
-            rx[i] = g * rx[i] + fi * ex2
-            rt[i] = g * rt[i] + fi * et2
-            f2[i] = g * f2[i] + fi * fi
+        r0, r1, r2 = gram
+        r0[0] = g * r0[0] + 1.0
+        r0[1] = r1[0] = g * r0[1] + d2
+        r0[2] = r2[0] = g * r0[2] + a2
+        r1[1] = g * r1[1] + d2 * d2
+        r1[2] = r2[1] = g * r1[2] + d2 * a2
+        r2[2] = g * r2[2] + a2 * a2
+        rx[0], rx[1], rx[2] = g * rx[0] + ex2, g * rx[1] + d2 * ex2, g * rx[2] + a2 * ex2
+        rt[0], rt[1], rt[2] = g * rt[0] + et2, g * rt[1] + d2 * et2, g * rt[2] + a2 * et2
+        f2[0], f2[1], f2[2] = g * f2[0] + 1.0, g * f2[1] + d2 * d2, g * f2[2] + a2 * a2
         self.count = g * self.count + 1.0
-        self._dirty = True
+        self._solve()
 
     def _solve(self) -> None:
-        self._dirty = False
-        self._updates = 0
         n = max(self.count, 1e-12)
         pen = [self.weight * v / n for v in self._f2]
         top = max(pen) + 1e-300
@@ -614,8 +609,8 @@ class EgoMotionEstimator:
                        f'({inc_reason}): constant-velocity prediction')
             guess = cv
             if self._motion is None:  # no motion seen yet: the guess (standing) is weak
-                lam = np.diag([0.01 / c.cv_sigma_xy ** 2, 0.01 / c.cv_sigma_xy ** 2,
-                               0.01 / c.cv_sigma_theta ** 2])
+                lam = np.array([0.01 / c.cv_sigma_xy ** 2, 0.01 / c.cv_sigma_xy ** 2,
+                                0.01 / c.cv_sigma_theta ** 2])
             else:
                 lam = self._prior_information(self.motion_model_noise, cv, self._cv_fixed)
         pred = compose(self._pose, guess)
@@ -660,7 +655,7 @@ class EgoMotionEstimator:
         reseeded = False
         if icp_pose is not None and not why:
             motion = between(self._pose, icp_pose)
-            cov = _inverse(info_icp + lam_used)
+            cov = _inverse(info_icp + np.diag(lam_used))
             if not partial and c.adaptive_prior:
                 self._adapt(res, info_icp, inc, cv)
             if partial and inc is not None:
@@ -677,7 +672,7 @@ class EgoMotionEstimator:
         else:
             # No match: the platform coasts on its motion model; the pose chain goes on.
             coasting = True
-            motion, cov = guess, _inverse(lam)
+            motion, cov = guess, np.diag(1.0 / lam)
             if inc is not None:
                 source, reason = SOURCE_ODOMETRY, f'ICP refused: {why}'
                 self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): '
@@ -808,15 +803,15 @@ class EgoMotionEstimator:
         return (c.cv_sigma_xy, 0.0, 0.0), (c.cv_sigma_theta, 0.0, 0.0)
 
     def _prior_information(self, noise: AdaptiveNoise, motion, fixed) -> np.ndarray:
-        """Information of a prediction ``motion``: the adapted noise, or the fixed model
-        (sigma = per step + per metre * d + per radian * |a|, as configured)."""
+        """Information (diagonal, x y theta) of a prediction ``motion``: the adapted noise,
+        or the fixed model (sigma = per step + per metre * d + per radian * |a|)."""
         if self.config.adaptive_prior:
             return noise.information(motion)
         (a, b, _), (ta, tb, tc) = fixed
         d = math.hypot(motion[0], motion[1])
         sxy = a + b * d
         sth = ta + tb * d + tc * abs(motion[2])
-        return np.diag([1.0 / sxy ** 2, 1.0 / sxy ** 2, 1.0 / sth ** 2])
+        return np.array([1.0 / sxy ** 2, 1.0 / sxy ** 2, 1.0 / sth ** 2])
 
     def _adapt(self, res: icp.IcpResult, info_icp, inc, cv) -> None:
         """Feed the disagreement of the predictions with the ICP motion (before fusion)."""
@@ -826,7 +821,7 @@ class EgoMotionEstimator:
             return
         if inc is not None:
             self.odometry_noise.update(inc, between(inc, m), var)
-        if self._motion is not None:
+        elif self._motion is not None:  # the motion model is learnt while it is used
             self.motion_model_noise.update(cv, between(cv, m), var)
 
     def _too_fast(self, motion, dt) -> str:
@@ -860,7 +855,7 @@ class EgoMotionEstimator:
         """ICP pose fused with the prediction: (pose, icp information, n_deg, why, prior
         information used).
 
-        ``lam`` is the prediction's information (odometry, or the constant-velocity motion
+        ``lam`` is the prediction's information, diagonal (odometry, or the constant-velocity
         model); along degenerate directions the prediction is kept.
         """
         c = self.config
@@ -876,16 +871,14 @@ class EgoMotionEstimator:
         d = between(pose, pred)
         if not n_deg:
             if c.prior_max_ratio > 0.0:
-                bound = c.prior_max_ratio * np.diag(info)
-                if np.any(np.diag(lam) > bound):
-                    lam = np.diag(np.minimum(np.diag(lam), bound))
+                lam = np.minimum(lam, c.prior_max_ratio * info.diagonal())
             if c.prior_gate > 0.0:
                 # a converged, well-overlapping match far outside the prediction's noise: the
                 # prediction is what failed (a wheel slip): it stops counting
-                m2 = _mahalanobis2(info, np.diag(lam), d)
+                m2 = _mahalanobis2(info, lam, d)
                 if m2 > c.prior_gate ** 2:
                     lam = lam * (c.prior_gate ** 2 / m2) ** 2
-        pose = compose(pose, np.linalg.solve(info + lam, lam @ d))
+        pose = compose(pose, np.linalg.solve(info + np.diag(lam), lam * d))
         if n_deg:
             # along degenerate directions (scaled coordinates z = delta / sv): the prediction
             z = between(pred, pose) / sv
