@@ -20,11 +20,12 @@ Method (per scan):
    platform) the prediction is the previous motion scaled to the time step (constant
    velocity). Either is a Gaussian prior.
 2. The prior's noise adapts (``adaptive_prior``, :class:`AdaptiveNoise`): each accepted,
-   fully constrained match gives the disagreement between the prediction and the ICP motion;
-   its square minus the ICP's own variance samples the prediction's variance, fitted per step,
-   per metre and per radian (robust running least squares over ``adaptive_memory`` matches,
-   starting from the fixed ``odom_sigma_*`` / ``cv_sigma_*`` model). So good odometry comes
-   to be trusted and poor odometry not, with the same defaults and no per-robot tuning.
+   fully constrained match gives the disagreement between the prediction in use (odometry,
+   else constant velocity) and the ICP motion; its square minus the ICP's own variance
+   samples the prediction's variance, fitted per step, per metre and per radian (robust
+   running least squares over ``adaptive_memory`` matches, starting from the fixed
+   ``odom_sigma_*`` / ``cv_sigma_*`` model). So good odometry comes to be trusted and poor
+   odometry not, with the same defaults and no per-robot tuning.
 3. The scan's valid points (``Scan.valid()`` and ``min_range``/``max_range``, at most
    ``max_points``) are matched by point-to-line ICP (:mod:`laser_tracker.core.icp`) against a
    local map of the last ``map_scans`` key scans placed with their estimated poses, starting
