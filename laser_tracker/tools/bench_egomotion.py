@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import time
 from pathlib import Path
@@ -240,8 +241,10 @@ def run_kiss(scans: list[Scan], odom: np.ndarray):
     return poses, motions, np.array(times[1:])
 
 
+@functools.lru_cache(maxsize=2)
 def load_corrected(path: Path):
-    """Scans, reference poses (N, 3), reference motions (N-1, 3) and how they are stamped."""
+    """Scans, reference poses (N, 3), reference motions (N-1, 3) and how they are stamped
+    (cached: each noise model reads the log once; nothing here is modified)."""
     log = read_carmen(path)
     ranges = log.scan_ranges()
     dt = np.diff(log.stamps)
