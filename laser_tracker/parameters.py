@@ -90,6 +90,10 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'ego_motion.map_scans': 1,
         'ego_motion.map_min_translation': 0.0,
         'ego_motion.map_min_rotation': 0.0,
+        'ego_motion.adaptive_prior': False,     # the configured odometry noise, fixed
+        'ego_motion.prior_max_ratio': 0.0,
+        'ego_motion.prior_gate': 0.0,
+        'ego_motion.speed_check_jitter': 0.0,
     },
     'detection': {
         'grid.free_erosion': 0,            # free space only from each beam itself

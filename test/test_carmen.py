@@ -3,17 +3,20 @@ small synthetic logs for the geometry, the no-return value and every kind of bad
 from __future__ import annotations
 
 import gzip
+import logging
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from laser_tracker.tools.cli import main
+from laser_tracker.core.geometry import wrap_angle
 from laser_tracker.errors import InputFileError
-from laser_tracker.tools.bag import read_odometry, read_scans, topics
+from laser_tracker.tools.bag import read_odometry, read_platform_truth, read_scans, topics
 from laser_tracker.tools.carmen import detect_max_reading, flaser_geometry, read_carmen
+from laser_tracker.tools.cli import main
 from laser_tracker.tools.data import real_data
+from laser_tracker.tools.odometry_noise import increments_of
 
 DATA = real_data() / 'carmen'
 
@@ -124,13 +127,14 @@ def test_robotlaser1_lines_carry_their_geometry(tmp_path):
 def test_import_reproduces_scan_count_and_ranges(tmp_path, capsys, name):
     path = _real(name)
     flaser = [t for t in _lines(path) if t and t[0] == 'FLASER']
-    odom = [t for t in _lines(path) if t and t[0] == 'ODOM']
     out = tmp_path / 'bag'
     status, cap = _cli(capsys, path, out)
     assert status == 0, cap.err
     info = topics(out)
     assert info['/scan'][1] == len(flaser)
-    assert info['/odom'][1] == (len(odom) if odom else len(flaser))
+    assert info['/odom'][1] == len(flaser)   # a corrected log: one noisy sample per scan;
+    corrected = 'corrected' in name           # mit-csail: no ODOM lines, the FLASER odometry
+    assert ('/ground_truth/platform' in info) == corrected
     scans = list(read_scans(out))
     assert len(scans) == len(flaser)
     # the bag is in time order; the log may not be: match scans to lines by stamp
@@ -164,14 +168,131 @@ def test_import_without_odom_lines_uses_flaser_odometry(tmp_path, capsys):
     np.testing.assert_allclose(track.stamps, [100.0, 101.0, 102.0])
 
 
-def test_out_of_order_odometry_written_in_time_order(tmp_path, capsys):
-    extra = _odom_line(9.0, 9.0, 0.0, 100.5) + _odom_line(8.0, 8.0, 0.0, 100.2)
-    path = _write_log(tmp_path / 'ooo.log', n_scans=3, extra=extra)
-    status, cap = _cli(capsys, path, tmp_path / 'bag')
+def test_corrected_log_gets_ground_truth_and_a_noisy_odometry(tmp_path, capsys):
+    path = _real('freiburg-079-part1-corrected.log.gz')
+    log = read_carmen(path)
+    out = tmp_path / 'bag'
+    status, cap = _cli(capsys, path, out, '--odometry-noise', 'poor', '--seed', '3')
     assert status == 0, cap.err
-    track = read_odometry(tmp_path / 'bag')
-    assert list(track.stamps) == sorted(track.stamps) and len(track) == 5
-    assert track.poses[list(track.stamps).index(100.2), 0] == pytest.approx(8.0)
+    assert 'corrected poses on /ground_truth/platform' in cap.out
+    truth = read_platform_truth(out)
+    np.testing.assert_allclose(truth.stamps, log.stamps)
+    np.testing.assert_allclose(truth.poses[:, :2], log.laser_poses[:, :2], atol=1e-6)
+    np.testing.assert_allclose(wrap_angle(truth.poses[:, 2] - log.laser_poses[:, 2]), 0.0,
+                               atol=1e-6)
+    odom = read_odometry(out)
+    np.testing.assert_allclose(odom.stamps, log.stamps)
+    err = increments_of(odom.poses) - increments_of(truth.poses)
+    assert np.std(err[:, 0]) == pytest.approx(0.05, rel=0.1)       # the poor model
+    assert np.degrees(np.std(err[:, 2])) == pytest.approx(2.0, rel=0.1)
+    # the same seed gives the same odometry; none gives the reference itself
+    status, _ = _cli(capsys, path, tmp_path / 'again', '--odometry-noise', 'poor',
+                     '--seed', '3')
+    np.testing.assert_allclose(read_odometry(tmp_path / 'again').poses, odom.poses)
+    status, _ = _cli(capsys, path, tmp_path / 'exact', '--odometry-noise', 'none')
+    exact = read_odometry(tmp_path / 'exact').poses
+    np.testing.assert_allclose(exact[:, :2], truth.poses[:, :2], atol=1e-6)
+    np.testing.assert_allclose(wrap_angle(exact[:, 2] - truth.poses[:, 2]), 0.0, atol=1e-6)
+
+
+def test_noisy_odometry_is_refused_for_a_raw_log(tmp_path, capsys):
+    path = _write_log(tmp_path / 'raw.log', n_scans=3)
+    out = tmp_path / 'bag'
+    status, cap = _cli(capsys, path, out, '--odometry-noise', 'realistic')
+    assert status == 2 and 'for corrected logs' in cap.err and not out.exists()
+
+
+# ---------------------------------------------------------------- messy time stamps
+
+
+def _messy(tmp_path, lines: str, n_scans=6, **kw) -> Path:
+    return _write_log(tmp_path / 'messy.log', n_scans=n_scans, extra=lines, **kw)
+
+
+def _issue(log, text: str) -> int:
+    found = [n for message, n in log.issues.items() if text in message]
+    assert len(found) == 1, (text, log.issues)
+    return found[0]
+
+
+def test_negative_odom_stamp_is_skipped_or_refused_with_strict(tmp_path, capsys, caplog):
+    path = _messy(tmp_path, _odom_line(9.0, 9.0, 0.0, -3.0))
+    with caplog.at_level(logging.WARNING, logger='laser_tracker.tools.carmen'):
+        log = read_carmen(path)
+    assert _issue(log, 'ODOM lines stamped negative') == 1
+    assert log.odom_stamps.size == 6 and np.all(log.odom_stamps > 0)
+    assert sum('stamped negative' in r.message for r in caplog.records) == 1
+    with pytest.raises(InputFileError, match='time stamp must be finite and >= 0') as info:
+        read_carmen(path, strict=True)
+    assert info.value.location == f'line {len(path.read_text().splitlines())}'
+    out = tmp_path / 'out'
+    status, cap = _cli(capsys, path, out, '--strict')
+    _assert_failed(status, cap, out, path, len(path.read_text().splitlines()))
+    status, cap = _cli(capsys, path, out)
+    assert status == 0 and read_odometry(out).stamps.size == 6
+
+
+def test_stamps_with_too_few_digits_are_spread(tmp_path):
+    # the same stamp printed for three ODOM lines and for two laser lines
+    rng = np.random.default_rng(1)
+    text = []
+    for i in range(4):
+        stamp = 1000.0 + (i // 2)                        # 1000, 1000, 1001, 1001
+        for j in range(3):
+            text.append(_odom_line(0.1 * i + 0.01 * j, 0.0, 0.0, stamp + 0.5 * (i % 2)))
+        text.append(_flaser_line(181, np.round(rng.uniform(1, 9, 181), 2), stamp=stamp))
+    path = tmp_path / 'digits.log'
+    path.write_text(''.join(text))
+    log = read_carmen(path)
+    assert _issue(log, 'FLASER lines share their time stamp') == 2
+    np.testing.assert_allclose(log.stamps, [1000.0, 1000.5, 1001.0, 1001.5])
+    assert _issue(log, 'ODOM lines share their time stamp') == 8
+    assert np.all(np.diff(log.odom_stamps) > 0)
+    np.testing.assert_allclose(log.odom_stamps[:3], [1000.0, 1000.5 / 3 + 2000 / 3,
+                                                     1000.0 + 1.0 / 3])
+    with pytest.raises(InputFileError, match='repeats the previous'):
+        read_carmen(path, strict=True)
+
+
+def test_out_of_order_odometry_sorted_or_dropped_and_reported_once(tmp_path, capsys, caplog):
+    # two lines a little late (sorted in), two stamped seconds early (dropped), and the
+    # corrected logs' habit: ODOM lines stamped 0 between the real ones (dropped)
+    extra = (_odom_line(9.0, 9.0, 0.0, 104.8) + _odom_line(8.0, 8.0, 0.0, 104.6)
+             + _odom_line(7.0, 7.0, 0.0, 101.5) + _odom_line(7.0, 7.0, 0.0, 101.2)
+             + ''.join(_odom_line(0.5, 0.5, 0.0, 0.0) for _ in range(5)))
+    path = _messy(tmp_path, extra, n_scans=6)
+    with caplog.at_level(logging.WARNING, logger='laser_tracker.tools.carmen'):
+        log = read_carmen(path)
+    assert _issue(log, 'out of time order: sorted') == 2     # after the log's 104.95
+    assert _issue(log, 'more than 1 s before') == 2
+    assert _issue(log, 'stamped 0 after later ones') == 5
+    assert np.all(np.diff(log.odom_stamps) > 0)
+    assert log.odom_stamps.size == 6 + 2
+    assert 8.0 in log.odom_stream[:, 0] and 7.0 not in log.odom_stream[:, 0]
+    # one warning per kind, whatever the count
+    messages = [r.message for r in caplog.records]
+    assert len(messages) == len(log.issues) and len(set(messages)) == len(messages)
+    with pytest.raises(InputFileError, match='before an earlier ODOM line'):
+        read_carmen(path, strict=True)
+    out = tmp_path / 'bag'
+    status, cap = _cli(capsys, path, out)
+    assert status == 0, cap.err
+    track = read_odometry(out)
+    assert list(track.stamps) == sorted(track.stamps) and len(track) == 8
+
+
+def test_unstamped_odom_lines_are_dropped(tmp_path):
+    extra = ''.join(_odom_line(0.5, 0.5, 0.0, 0.0) for _ in range(5))
+    log = read_carmen(_messy(tmp_path, extra))
+    assert _issue(log, 'stamped 0 after later ones') == 5
+    assert log.odom_stamps.size == 6 and log.odom_stamps.min() > 99.0
+
+
+def test_odom_lines_disagreeing_with_the_laser_odometry_are_reported(tmp_path):
+    log = read_carmen(_messy(tmp_path, ''))  # FLASER odometry (0.2 i, 0.05) vs ODOM (0.1 i, 0)
+    n = _issue(log, 'odometry fields disagree with the ODOM lines')
+    assert 4 <= n <= 6
+    assert log.odometry()[3] == 'ODOM'
 
 
 # ------------------------------------------------------------------------ bad input

@@ -66,8 +66,8 @@ from laser_tracker.core.egomotion import SOURCE_ICP, SOURCE_INIT, SOURCE_ODOMETR
     SOURCE_PARTIAL
 from laser_tracker.core.grid import FREE, OCCUPIED, UNKNOWN, lookup_padded, lookup_stack
 
-#: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` (ICP
-#: refused) and ``none`` are not.
+#: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` and
+#: ``constant_velocity`` (coasting: no match accepted) and ``none`` are not.
 TRUSTED_SOURCES = frozenset((SOURCE_INIT, SOURCE_ICP, SOURCE_PARTIAL))
 #: The x, y and yaw variance that stands for "no trusted estimate" (ICP refused, odometry
 #: used): any variance at or above it (or not finite) marks the pose as failed.
@@ -167,12 +167,13 @@ class PoseQuality:
 def pose_quality(estimate) -> PoseQuality:
     """The quality of an ego-motion estimate (``core.egomotion.EgoMotionEstimate``).
 
-    Failed (:data:`FAILED_VARIANCE`): a source other than ``init``, ``icp``, ``icp_partial``
-    *after a match was tried and refused* (did not converge, too little overlap, too large a
-    residual, implausible speed or correction). Odometry used because no match could be tried
-    at all (too few scan or map points; ``rms`` is NaN exactly then) is not evidence against
-    the pose: it keeps the odometry covariance and nothing unmatched, as the paper's
-    odometry-only platform would.
+    Failed (:data:`FAILED_VARIANCE`): a coasting estimate (``coasting``, or a source other than
+    ``init``, ``icp``, ``icp_partial``) *after a match was tried and refused* (did not
+    converge, too little overlap, too large a residual, implausible speed or correction), and
+    any coasting estimate that is not odometry (the constant-velocity motion model is a guess).
+    Odometry used because no match could be tried at all (too few scan or map points; ``rms``
+    is NaN exactly then) is not evidence against the pose: it keeps the odometry covariance and
+    nothing unmatched, as the paper's odometry-only platform would.
     """
     source = str(estimate.source)
     if source == SOURCE_INIT:
@@ -180,7 +181,8 @@ def pose_quality(estimate) -> PoseQuality:
     ratio = float(estimate.inlier_ratio)
     tried = not math.isnan(float(estimate.rms))
     unmatched = (1.0 - ratio if 0.0 <= ratio <= 1.0 else 1.0) if tried else 0.0
-    if source not in TRUSTED_SOURCES and (tried or source != SOURCE_ODOMETRY):
+    coasting = bool(getattr(estimate, 'coasting', False)) or source not in TRUSTED_SOURCES
+    if coasting and (tried or source != SOURCE_ODOMETRY):
         return PoseQuality((FAILED_VARIANCE,) * 3, unmatched)
     cov = estimate.covariance
     try:

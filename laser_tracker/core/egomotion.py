@@ -5,41 +5,56 @@ Pure numpy/scipy (no ROS). Usage, one estimator per scan stream::
     est = EgoMotionEstimator(EgoMotionConfig())
     est.add_odometry(stamp, (x, y, theta))     # every odometry sample, as it arrives
     e = est.update(scan)                       # every Scan -> EgoMotionEstimate
-    e.pose      # (3,) scanner pose in the odometry frame; NaN when source == 'none'
-    e.motion    # (3,) motion since the previous scan with a pose (previous scanner frame)
-    e.covariance, e.source, e.reason, e.ok
+    e.pose      # (3,) scanner pose in the odometry frame (NaN only when source == 'none')
+    e.motion    # (3,) motion since the previous scan (previous scanner frame)
+    e.covariance, e.source, e.reason, e.coasting, e.ok
 
 Offline, with the whole odometry as a PoseTrack: :func:`estimate_track`.
 
 Method (per scan):
 
-1. Odometry is interpolated at ``scan.stamp + odom_latency`` (odometry stamped late by
-   ``odom_latency`` seconds) and the scanner's mounting (``mount_*``) applied; the increment
-   since the previous scan is the prediction and a Gaussian prior (``odom_sigma_*``).
-2. The scan's valid points (``Scan.valid()`` and ``min_range``/``max_range``, at most
+1. The prediction. Odometry is interpolated at ``scan.stamp + odom_latency`` (odometry
+   stamped late by ``odom_latency`` seconds) and the scanner's mounting (``mount_*``)
+   applied; the increment since the previous scan is the prediction. Without a usable
+   increment (no odometry, late, a gap, or a jump: a segment break or a step faster than the
+   platform) the prediction is the previous motion scaled to the time step (constant
+   velocity). Either is a Gaussian prior.
+2. The prior's noise adapts (``adaptive_prior``, :class:`AdaptiveNoise`): each accepted,
+   fully constrained match gives the disagreement between the prediction in use (odometry,
+   else constant velocity) and the ICP motion; its square minus the ICP's own variance
+   samples the prediction's variance, fitted per step, per metre and per radian (robust
+   running least squares over ``adaptive_memory`` matches, starting from the fixed
+   ``odom_sigma_*`` / ``cv_sigma_*`` model). So good odometry comes to be trusted and poor
+   odometry not, with the same defaults and no per-robot tuning.
+3. The scan's valid points (``Scan.valid()`` and ``min_range``/``max_range``, at most
    ``max_points``) are matched by point-to-line ICP (:mod:`laser_tracker.core.icp`) against a
-   local map of the last ``map_scans`` scans placed with their estimated poses, starting at
-   the prediction, with coarse-to-fine association distances (``association_distance`` down
+   local map of the last ``map_scans`` key scans placed with their estimated poses, starting
+   at the prediction, with coarse-to-fine association distances (``association_distance`` down
    to ``association_distance_final``) and Cauchy weights.
-3. ICP and odometry are fused by information: the ICP direction constrained by a fraction
-   ``lambda`` of the points (eigenvalues of the normalised Hessian) gets the variance
-   ``icp_model_sigma**2 / lambda``, so weakly constrained directions lean on odometry.
-   Directions with ``lambda < degeneracy_threshold`` (a featureless corridor, a single wall)
-   take the odometry value exactly (source ``icp_partial``; without odometry, the
-   constant-velocity guess, said so in ``reason``).
-4. Checks: enough points, overlap (``min_inlier_ratio``), residual (``max_rms``),
+4. ICP and the prediction are fused by information: the ICP direction constrained by a
+   fraction ``lambda`` of the points (eigenvalues of the normalised Hessian) gets the variance
+   ``icp_model_sigma**2 / lambda``; the prior's information is at most ``prior_max_ratio``
+   times the match's per axis, and a match more than ``prior_gate`` combined sigmas from the
+   prediction overrides it (a wheel slip). Directions with ``lambda < degeneracy_threshold``
+   (a featureless corridor, a single wall) take the prediction exactly (source
+   ``icp_partial``).
+5. Checks: enough points, overlap (``min_inlier_ratio``), residual (``max_rms``),
    convergence, the platform's speed limits (``max_translation_speed``,
    ``max_rotation_speed``) and the disagreement with odometry (``max_correction_*``).
-   A failed check falls back to odometry (source ``odometry``); without usable odometry the
-   scan gets no pose (source ``none``, pose NaN, state unchanged); after ``max_lost_scans``
-   such scans the map restarts from the next scan (source ``init``).
+   A refused match never restarts the pose chain: the platform coasts on its prediction
+   (source ``odometry`` or ``constant_velocity``, ``coasting`` True; detection gates such a
+   scan, see ``difference.pose_quality``). After ``max_lost_scans`` scans in a row without a
+   match (or at once when the map is too small to match against) the local map is re-seeded
+   from the current scan at its coasted pose; the pose chain goes on.
 
-Sources: ``init`` (first scan or restart: pose = odometry pose or the origin, motion 0),
-``icp``, ``icp_partial`` (ICP with odometry along the degenerate directions), ``odometry``
-(ICP refused; reason says why), ``none`` (no pose). ``reason`` is a short text for logs.
+Sources: ``init`` (first scan or an explicit reset: pose = odometry pose or the origin,
+motion 0), ``icp``, ``icp_partial`` (ICP with the prediction along the degenerate
+directions), ``odometry`` (no match: the odometry increment; reason says why),
+``constant_velocity`` (no match and no usable odometry: the previous motion), ``none`` (no
+pose: a scan with the same stamp as the previous one). ``reason`` is a short text for logs.
 
 Bad input is never fatal: non-finite/non-positive ranges are not points; too few points or
-an all-max-range scan fall back to odometry; odometry that is missing, late (beyond
+an all-max-range scan coast on the prediction; odometry that is missing, late (beyond
 ``odom_max_extrapolation``), has a gap (``odom_max_gap``), jumps (faster than the platform),
 arrives out of order (inserted in order) or goes back in time by more than
 ``odom_reset_threshold`` (buffer cleared) is handled in :class:`OdometryBuffer`; a scan
@@ -69,8 +84,10 @@ SOURCE_INIT = 'init'
 SOURCE_ICP = 'icp'
 SOURCE_PARTIAL = 'icp_partial'
 SOURCE_ODOMETRY = 'odometry'
+SOURCE_CONSTANT_VELOCITY = 'constant_velocity'
 SOURCE_NONE = 'none'
-SOURCES = (SOURCE_INIT, SOURCE_ICP, SOURCE_PARTIAL, SOURCE_ODOMETRY, SOURCE_NONE)
+SOURCES = (SOURCE_INIT, SOURCE_ICP, SOURCE_PARTIAL, SOURCE_ODOMETRY, SOURCE_CONSTANT_VELOCITY,
+           SOURCE_NONE)
 
 _PI = 3.141592653589793
 
@@ -103,17 +120,53 @@ class EgoMotionConfig:
         '(bag loop): the buffer is cleared. Younger ones are inserted in time order.',
         min=0.0, max=3600.0)
     odom_sigma_xy: float = param(
-        0.01, 'Odometry increment noise per scan step, each of x and y (m, 1 sigma).',
-        min=1e-4, max=10.0)
+        0.01, 'Odometry increment noise per scan step, each of x and y (m, 1 sigma); with '
+        'adaptive_prior: the starting value, then adapted.', min=1e-4, max=10.0)
     odom_sigma_xy_per_m: float = param(
         0.05, 'Additional odometry translation noise per metre travelled (m/m).',
         min=0.0, max=1.0)
     odom_sigma_theta: float = param(
         0.0087, 'Odometry increment rotation noise per scan step (rad, 1 sigma; 0.5 deg).',
         min=1e-5, max=3.0)
+    odom_sigma_theta_per_m: float = param(
+        0.0, 'Additional odometry rotation noise per metre travelled (rad/m).',
+        min=0.0, max=1.0)
     odom_sigma_theta_per_rad: float = param(
         0.05, 'Additional odometry rotation noise per radian turned (rad/rad).',
         min=0.0, max=1.0)
+    # --- motion-model prior (no odometry)
+    cv_sigma_xy: float = param(
+        0.05, 'Without usable odometry the prediction is the previous motion scaled to the '
+        'time step (constant velocity); its noise per scan step, each of x and y (m, 1 '
+        'sigma); with adaptive_prior: the starting value, then adapted.', min=1e-4, max=10.0)
+    cv_sigma_theta: float = param(
+        0.05, 'Constant-velocity prediction rotation noise per scan step (rad, 1 sigma).',
+        min=1e-5, max=3.0)
+    # --- adaptive prior
+    adaptive_prior: bool = param(
+        True, 'Adapt the odometry and constant-velocity noise online to how well they agree '
+        'with the accepted ICP matches (variance per step, per metre and per radian, '
+        'robust running least squares): the same defaults for good and poor odometry. '
+        'false = the fixed odom_sigma_* / cv_sigma_* model.')
+    adaptive_memory: int = param(
+        50, 'Effective number of recent matches the adapted noise is estimated from '
+        '(exponential forgetting).', min=2, max=100000)
+    adaptive_weight: float = param(
+        5.0, 'Weight of the fixed odom_sigma_* / cv_sigma_* model in the adapted noise, in '
+        'matches: it dominates the first few matches and regularises directions the data '
+        'do not inform.', min=0.0, max=100000.0)
+    adaptive_clip: float = param(
+        3.0, 'A disagreement beyond this many predicted sigmas counts as this many (false '
+        'matches and odometry glitches do not blow the estimate up).', min=1.0, max=100.0)
+    prior_max_ratio: float = param(
+        10.0, 'The prediction\'s information (odometry or constant velocity) is at most this '
+        'multiple of the match\'s, along each of x, y and heading: a match always counts, so '
+        'the adapted prior of a good odometry cannot silence the laser (0 = no bound).',
+        min=0.0, max=1e6)
+    prior_gate: float = param(
+        5.0, 'A match that disagrees with the prediction by more than this many combined '
+        'sigmas (Mahalanobis distance) overrides it: the prediction\'s weight falls with the '
+        'square of the excess (a wheel slip shows). 0 = plain fusion.', min=0.0, max=1000.0)
     # --- platform limits
     max_translation_speed: float = param(
         2.0, 'Platform maximum speed (m/s): faster matches and odometry steps are rejected.',
@@ -185,8 +238,12 @@ class EgoMotionConfig:
         0.35, 'Largest ICP correction of the odometry prediction (rad).', min=0.001,
         max=_PI)
     max_lost_scans: int = param(
-        5, 'After this many scans without a pose in a row the local map restarts.',
-        min=1, max=100000)
+        5, 'After this many scans in a row without an accepted match (the platform coasting '
+        'on its motion model) the local map is re-seeded from the current scan; the pose '
+        'chain continues.', min=1, max=100000)
+    speed_check_jitter: float = param(
+        0.05, 'The platform speed checks allow the motion of the time step plus this (s): '
+        'scan stamps jitter.', min=0.0, max=10.0)
 
 
 @dataclass(frozen=True)
@@ -206,10 +263,12 @@ class EgoMotionEstimate:
     rms: float = float('nan')   # ICP: weighted RMS residual (m)
     iterations: int = 0         # ICP: Gauss-Newton steps
     min_eigenvalue: float = float('nan')  # ICP: weakest normalised Hessian eigenvalue
+    coasting: bool = False      # pose from the motion model (no match accepted)
 
     @property
     def ok(self) -> bool:
-        """True when ``pose`` and ``motion`` are usable."""
+        """True when ``pose`` and ``motion`` are usable (a coasting estimate is, with its
+        prediction's covariance; detection does not trust it)."""
         return self.source != SOURCE_NONE
 
 
@@ -334,6 +393,130 @@ class OdometryBuffer:
                          wrap_scalar(p0[2] + wrap_scalar(p1[2] - p0[2]) * f)]), self._seg[i], ''
 
 
+# ------------------------------------------------------------------- adaptive prior
+
+
+class AdaptiveNoise:
+    """Running estimate of a motion prediction's noise from its disagreement with ICP.
+
+    Model, for a predicted motion of distance ``d`` and angle ``a``: the variance of each of
+    x and y is ``cx . f`` and that of the heading ``ct . f`` with ``f = (1, d^2, a^2)``
+    (noise per step, per metre, per radian). Every accepted, fully constrained match gives a
+    disagreement ``e`` between the prediction and the ICP motion; ``e^2`` minus the ICP's own
+    variance is an unbiased sample of the prediction's variance. The coefficients are the
+    least-squares fit to these samples with exponential forgetting (``memory`` samples),
+    regularised towards the fixed model ``c0`` with the weight of ``weight`` samples, and
+    kept non-negative; a sample beyond ``clip`` predicted sigmas is clipped there (a false
+    match must not blow the estimate up; a real change passes in a few steps since each
+    clipped sample still raises the estimate). Plain floats: it runs on every scan.
+    """
+
+    def __init__(self, cx0, ct0, memory: int, weight: float, clip: float):
+        self.c0 = (tuple(float(v) for v in cx0), tuple(float(v) for v in ct0))
+        self.coef = self.c0
+        self.forget = 1.0 - 1.0 / max(float(memory), 1.0)
+        self.weight = float(weight)
+        self.clip2 = float(clip) ** 2
+        self._gram = [[0.0] * 3 for _ in range(3)]
+        self._rhs = ([0.0] * 3, [0.0] * 3)
+        self._f2 = [0.0] * 3
+        self.count = 0.0
+
+    def variance(self, motion) -> tuple[float, float]:
+        """``(var_xy, var_theta)`` of a prediction ``motion`` (x, y, theta)."""
+        return self._variance(motion)
+
+    def _variance(self, motion) -> tuple[float, float]:
+        d2 = float(motion[0] * motion[0] + motion[1] * motion[1])
+        a2 = float(motion[2] * motion[2])
+        cx, ct = self.coef
+        return (max(cx[0] + cx[1] * d2 + cx[2] * a2, 1e-10),
+                max(ct[0] + ct[1] * d2 + ct[2] * a2, 1e-12))
+
+    def information(self, motion) -> np.ndarray:
+        """The diagonal (x, y, theta) of the information of a prediction ``motion``."""
+        vxy, vth = self.variance(motion)
+        return np.array([1.0 / vxy, 1.0 / vxy, 1.0 / vth])
+
+    def update(self, motion, error, icp_variance) -> None:
+        """One disagreement ``error`` (x, y, theta) of the prediction ``motion`` with an ICP
+        motion of variance ``icp_variance`` (x, y, theta)."""
+        f = (1.0, float(motion[0] * motion[0] + motion[1] * motion[1]),
+             float(motion[2] * motion[2]))
+        vxy, vth = self._variance(motion)
+        ix = 0.5 * float(icp_variance[0] + icp_variance[1])
+        it = float(icp_variance[2])
+        ex2 = min(0.5 * float(error[0] * error[0] + error[1] * error[1]),
+                  self.clip2 * (vxy + ix)) - ix
+        et2 = min(float(error[2] * error[2]), self.clip2 * (vth + it)) - it
+        g = self.forget
+        _, d2, a2 = f
+        gram, (rx, rt), f2 = self._gram, self._rhs, self._f2
+        r0, r1, r2 = gram
+        r0[0] = g * r0[0] + 1.0
+        r0[1] = r1[0] = g * r0[1] + d2
+        r0[2] = r2[0] = g * r0[2] + a2
+        r1[1] = g * r1[1] + d2 * d2
+        r1[2] = r2[1] = g * r1[2] + d2 * a2
+        r2[2] = g * r2[2] + a2 * a2
+        rx[0], rx[1], rx[2] = g * rx[0] + ex2, g * rx[1] + d2 * ex2, g * rx[2] + a2 * ex2
+        rt[0], rt[1], rt[2] = g * rt[0] + et2, g * rt[1] + d2 * et2, g * rt[2] + a2 * et2
+        f2[0], f2[1], f2[2] = g * f2[0] + 1.0, g * f2[1] + d2 * d2, g * f2[2] + a2 * a2
+        self.count = g * self.count + 1.0
+        self._solve()
+
+    def _solve(self) -> None:
+        n = max(self.count, 1e-12)
+        pen = [self.weight * v / n for v in self._f2]
+        top = max(pen) + 1e-300
+        pen = [p + 1e-9 * top for p in pen]
+        self.coef = tuple(_nonnegative_ridge(self._gram, rhs, pen, c0)
+                          for rhs, c0 in zip(self._rhs, self.c0))
+
+
+def _nonnegative_ridge(gram, rhs, pen, c0) -> tuple[float, float, float]:
+    """``argmin |G c - r|`` ridge-regularised towards ``c0`` (weights ``pen``), c >= 0: the
+    normal equations on the free coefficients, dropping negative ones (3 unknowns)."""
+    a = [[gram[0][0] + pen[0], gram[0][1], gram[0][2]],
+         [gram[1][0], gram[1][1] + pen[1], gram[1][2]],
+         [gram[2][0], gram[2][1], gram[2][2] + pen[2]]]
+    b = [rhs[0] + pen[0] * c0[0], rhs[1] + pen[1] * c0[1], rhs[2] + pen[2] * c0[2]]
+    free = [0, 1, 2]
+    while free:
+        if len(free) == 3:
+            sol = _solve_small(a, b)
+        else:
+            sol = _solve_small([[a[i][j] for j in free] for i in free], [b[i] for i in free])
+        if sol is None:
+            return tuple(c0)
+        if sol[0] >= 0.0 and all(v >= 0.0 for v in sol):
+            out = [0.0, 0.0, 0.0]
+            for i, v in zip(free, sol):
+                out[i] = v
+            return tuple(out)
+        free = [i for i, v in zip(free, sol) if v > 0.0]
+    return (0.0, 0.0, 0.0)
+
+
+def _solve_small(a, b):
+    """Solve a 1x1, 2x2 or 3x3 linear system by Cramer's rule (None when singular)."""
+    n = len(b)
+    if n == 1:
+        return [b[0] / a[0][0]] if a[0][0] > 0.0 else None
+    if n == 2:
+        det = a[0][0] * a[1][1] - a[0][1] * a[1][0]
+        if abs(det) < 1e-300:
+            return None
+        return [(b[0] * a[1][1] - a[0][1] * b[1]) / det, (a[0][0] * b[1] - b[0] * a[1][0]) / det]
+    (p, q, r), (s, t, u), (v, w, x) = a
+    det = p * (t * x - u * w) - q * (s * x - u * v) + r * (s * w - t * v)
+    if abs(det) < 1e-300:
+        return None
+    return [(b[0] * (t * x - u * w) - q * (b[1] * x - u * b[2]) + r * (b[1] * w - t * b[2])) / det,
+            (p * (b[1] * x - u * b[2]) - b[0] * (s * x - u * v) + r * (s * b[2] - b[1] * v)) / det,
+            (p * (t * b[2] - b[1] * w) - q * (s * b[2] - b[1] * v) + b[0] * (s * w - t * v)) / det]
+
+
 # -------------------------------------------------------------------------- estimator
 
 
@@ -354,6 +537,14 @@ class EgoMotionEstimator:
         self.stats: Counter = Counter()
         self._notes: Counter = Counter()
         self._map = icp.LocalMap(c.map_scans)
+        self.odometry_noise = AdaptiveNoise(
+            (c.odom_sigma_xy ** 2, c.odom_sigma_xy_per_m ** 2, 0.0),
+            (c.odom_sigma_theta ** 2, c.odom_sigma_theta_per_m ** 2,
+             c.odom_sigma_theta_per_rad ** 2),
+            c.adaptive_memory, c.adaptive_weight, c.adaptive_clip)
+        self.motion_model_noise = AdaptiveNoise(
+            (c.cv_sigma_xy ** 2, 0.0, 0.0), (c.cv_sigma_theta ** 2, 0.0, 0.0),
+            c.adaptive_memory, c.adaptive_weight, c.adaptive_clip)
         self._reset_state()
 
     # ----------------------------------------------------------------- public API
@@ -365,7 +556,8 @@ class EgoMotionEstimator:
             self._note(*note)
 
     def reset(self, reason: str = 'reset requested') -> None:
-        """Forget the local map and the pose chain (odometry history is kept)."""
+        """Forget the local map and the pose chain (odometry history and the adapted noise
+        are kept)."""
         self._note('reset', f'ego-motion reset: {reason}', level=logging.WARNING)
         self.stats['resets'] += 1
         self._reset_state()
@@ -409,14 +601,19 @@ class EgoMotionEstimator:
                 inc = None
             else:
                 inc_reason = ''
+        cv = self._constant_velocity(dt)
         if inc is not None:
             guess = inc
-            lam = self._prior_information(inc)
+            lam = self._prior_information(self.odometry_noise, inc, self._odo_fixed)
         else:
             self._note('no odometry', f'scan at {t:.3f} s: no odometry increment '
-                       f'({inc_reason})')
-            guess = self._constant_velocity(dt)
-            lam = None
+                       f'({inc_reason}): constant-velocity prediction')
+            guess = cv
+            if self._motion is None:  # no motion seen yet: the guess (standing) is weak
+                lam = np.array([0.01 / c.cv_sigma_xy ** 2, 0.01 / c.cv_sigma_xy ** 2,
+                                0.01 / c.cv_sigma_theta ** 2])
+            else:
+                lam = self._prior_information(self.motion_model_noise, cv, self._cv_fixed)
         pred = compose(self._pose, guess)
 
         # --- ICP
@@ -424,9 +621,10 @@ class EgoMotionEstimator:
         icp_pose = None
         info_icp = None
         partial = 0
+        map_ok = self._map.n_points >= c.min_points
         if n_pts < c.min_points:
             why = f'too few valid points ({n_pts} < {c.min_points})'
-        elif self._map.n_points < c.min_points:
+        elif not map_ok:
             why = f'local map too small ({self._map.n_points} points)'
         else:
             res = icp.align(pts, self._map, pred, self._distances, c.kernel_ratio,
@@ -436,7 +634,7 @@ class EgoMotionEstimator:
                             coarse_stride=c.coarse_stride)
             why = self._check(res)
             if not why:
-                icp_pose, info_icp, partial, why = self._fuse(res, pred, lam)
+                icp_pose, info_icp, partial, why, lam_used = self._fuse(res, pred, lam)
             if not why:
                 motion_icp = between(self._pose, icp_pose)
                 speed = self._too_fast(motion_icp, dt)
@@ -454,13 +652,14 @@ class EgoMotionEstimator:
         if res is not None:
             diag = dict(inlier_ratio=res.inlier_ratio, rms=res.rms, iterations=res.iterations,
                         min_eigenvalue=float(res.eigenvalues[0]))
+        coasting = False
+        reseeded = False
         if icp_pose is not None and not why:
             motion = between(self._pose, icp_pose)
-            if lam is not None:
-                cov = _inverse(info_icp + lam)
-            else:  # no odometry: a guess worth ten times the odometry noise
-                cov = _inverse(info_icp + 0.01 * self._prior_information(guess))
-            if partial and lam is not None:
+            cov = _inverse(info_icp + np.diag(lam_used))
+            if not partial and c.adaptive_prior:
+                self._adapt(res, info_icp, inc, cv)
+            if partial and inc is not None:
                 source = SOURCE_PARTIAL
                 reason = f'{partial} degenerate direction(s): odometry along them'
             elif partial:
@@ -470,25 +669,45 @@ class EgoMotionEstimator:
             else:
                 source = SOURCE_ICP
                 reason = 'icp' if inc is not None else f'icp without odometry ({inc_reason})'
-        elif inc is not None:
-            self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): odometry used')
-            motion, source, reason = inc, SOURCE_ODOMETRY, f'ICP refused: {why}'
-            cov = _inverse(lam)
+            self._lost = 0
         else:
-            reason = f'ICP refused ({why}) and no odometry ({inc_reason})'
-            return self._none(scan, reason, n_pts, **diag)
+            # No match: the platform coasts on its motion model; the pose chain goes on.
+            coasting = True
+            motion, cov = guess, np.diag(1.0 / lam)
+            if inc is not None:
+                source, reason = SOURCE_ODOMETRY, f'ICP refused: {why}'
+                self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): '
+                           f'odometry used')
+            else:
+                source = SOURCE_CONSTANT_VELOCITY
+                reason = f'ICP refused ({why}) and no odometry ({inc_reason}): coasting'
+                self._note('coasting', f'scan at {t:.3f} s: ICP refused ({why}) and no '
+                           f'odometry ({inc_reason}): constant-velocity motion')
+            if res is not None or not map_ok:
+                self._lost += 1  # a match was tried and refused, or there is nothing to match
+            if n_pts >= c.min_points and (not map_ok or self._lost >= c.max_lost_scans):
+                reseeded = True
+                reason += '; local map re-seeded from this scan'
+                self._note('map re-seeded', f'scan at {t:.3f} s: {self._lost} scans without '
+                           f'a match: the local map is re-seeded from this scan (the pose '
+                           f'chain continues)')
+                self.stats['map re-seeded'] += 1
 
         self._pose = compose(self._pose, motion)
         self._stamp = t
         self._odo, self._seg = (odo, seg) if odo is not None else (None, -1)
         self._motion, self._dt = motion, dt
-        self._lost = 0
-        if self._moved_since_key_scan():
+        if reseeded:
+            self._map.clear()
+            self._lost = 0
             self._add_to_map(pts)
+        elif source != SOURCE_CONSTANT_VELOCITY and self._moved_since_key_scan():
+            self._add_to_map(pts)  # placed by ICP or odometry (a guess would pollute the map)
         self.stats[source] += 1
         return EgoMotionEstimate(stamp=t, pose=self._pose.copy(), motion=motion,
                                  covariance=cov, source=source, reason=reason, dt=dt,
-                                 odometry_motion=inc, n_points=n_pts, **diag)
+                                 odometry_motion=inc, n_points=n_pts, coasting=coasting,
+                                 **diag)
 
     # ------------------------------------------------------------------- internals
 
@@ -562,11 +781,6 @@ class EgoMotionEstimator:
     def _none(self, scan, reason, n_pts, lost=True, **diag) -> EgoMotionEstimate:
         self._note('no pose', f'scan at {scan.stamp:.3f} s has no pose: {reason}')
         self.stats[SOURCE_NONE] += 1
-        self._lost += int(lost)
-        if self._lost >= self.config.max_lost_scans and self._pose is not None:
-            self._note('lost', f'{self._lost} scans without a pose: the local map restarts '
-                       f'at the next scan')
-            self._reset_state()
         nan3 = np.full(3, np.nan)
         return EgoMotionEstimate(stamp=float(scan.stamp), pose=nan3, motion=nan3.copy(),
                                  covariance=np.full((3, 3), np.nan), source=SOURCE_NONE,
@@ -578,18 +792,46 @@ class EgoMotionEstimator:
         f = min(dt / self._dt, 3.0)
         return self._motion * f
 
-    def _prior_information(self, inc) -> np.ndarray:
+    @property
+    def _odo_fixed(self):
         c = self.config
-        sxy = c.odom_sigma_xy + c.odom_sigma_xy_per_m * math.hypot(inc[0], inc[1])
-        sth = c.odom_sigma_theta + c.odom_sigma_theta_per_rad * abs(inc[2])
-        return np.diag([1.0 / sxy ** 2, 1.0 / sxy ** 2, 1.0 / sth ** 2])
+        return ((c.odom_sigma_xy, c.odom_sigma_xy_per_m, 0.0),
+                (c.odom_sigma_theta, c.odom_sigma_theta_per_m, c.odom_sigma_theta_per_rad))
+
+    @property
+    def _cv_fixed(self):
+        c = self.config
+        return (c.cv_sigma_xy, 0.0, 0.0), (c.cv_sigma_theta, 0.0, 0.0)
+
+    def _prior_information(self, noise: AdaptiveNoise, motion, fixed) -> np.ndarray:
+        """Information (diagonal, x y theta) of a prediction ``motion``: the adapted noise,
+        or the fixed model (sigma = per step + per metre * d + per radian * |a|)."""
+        if self.config.adaptive_prior:
+            return noise.information(motion)
+        (a, b, _), (ta, tb, tc) = fixed
+        d = math.hypot(motion[0], motion[1])
+        sxy = a + b * d
+        sth = ta + tb * d + tc * abs(motion[2])
+        return np.array([1.0 / sxy ** 2, 1.0 / sxy ** 2, 1.0 / sth ** 2])
+
+    def _adapt(self, res: icp.IcpResult, info_icp, inc, cv) -> None:
+        """Feed the disagreement of the predictions with the ICP motion (before fusion)."""
+        m = between(self._pose, res.pose)
+        var = _inverse_diagonal(info_icp)
+        if var is None:
+            return
+        if inc is not None:
+            self.odometry_noise.update(inc, between(inc, m), var)
+        elif self._motion is not None:  # the motion model is learnt while it is used
+            self.motion_model_noise.update(cv, between(cv, m), var)
 
     def _too_fast(self, motion, dt) -> str:
         c = self.config
         if dt <= 0.0:
             return ''
-        v = math.hypot(motion[0], motion[1]) / dt
-        w = abs(motion[2]) / dt
+        span = dt + c.speed_check_jitter
+        v = math.hypot(motion[0], motion[1]) / span
+        w = abs(motion[2]) / span
         if v > c.max_translation_speed:
             return f'{v:.2f} m/s > {c.max_translation_speed:g} m/s'
         if w > c.max_rotation_speed:
@@ -611,10 +853,11 @@ class EgoMotionEstimator:
         return ''
 
     def _fuse(self, res: icp.IcpResult, pred, lam):
-        """ICP pose fused with the prediction; returns (pose, icp information, n_deg, why).
+        """ICP pose fused with the prediction: (pose, icp information, n_deg, why, prior
+        information used).
 
-        ``lam`` is the odometry prior's information (None without odometry: then ICP stands
-        alone and degenerate directions keep the prediction, a constant-velocity guess).
+        ``lam`` is the prediction's information, diagonal (odometry, or the constant-velocity
+        model); along degenerate directions the prediction is kept.
         """
         c = self.config
         sv = np.array([1.0, 1.0, 1.0 / res.scale])
@@ -622,13 +865,21 @@ class EgoMotionEstimator:
         deg = evals < c.degeneracy_threshold
         n_deg = int(np.count_nonzero(deg))
         if n_deg == 3:
-            return None, None, 0, 'degenerate in every direction'
+            return None, None, 0, 'degenerate in every direction', lam
         # information of the ICP pose: H / (sum w * model_sigma^2), scanner-frame perturbation
         info = res.hessian / (max(res.sum_weights, 1e-12) * c.icp_model_sigma ** 2)
         pose = res.pose
-        if lam is not None:
-            d = between(pose, pred)
-            pose = compose(pose, np.linalg.solve(info + lam, lam @ d))
+        d = between(pose, pred)
+        if not n_deg:
+            if c.prior_max_ratio > 0.0:
+                lam = np.minimum(lam, c.prior_max_ratio * info.diagonal())
+            if c.prior_gate > 0.0:
+                # a converged, well-overlapping match far outside the prediction's noise: the
+                # prediction is what failed (a wheel slip): it stops counting
+                m2 = _mahalanobis2(info, lam, d)
+                if m2 > c.prior_gate ** 2:
+                    lam = lam * (c.prior_gate ** 2 / m2) ** 2
+        pose = compose(pose, np.linalg.solve(info + np.diag(lam), lam * d))
         if n_deg:
             # along degenerate directions (scaled coordinates z = delta / sv): the prediction
             z = between(pred, pose) / sv
@@ -639,7 +890,34 @@ class EgoMotionEstimator:
             proj = np.eye(3) - v @ v.T
             s_inv = np.diag(1.0 / sv)
             info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
-        return pose, info, n_deg, ''
+        return pose, info, n_deg, '', lam
+
+
+def _inverse_diagonal(m):
+    """Diagonal of the inverse of a symmetric positive 3x3 matrix (None when singular)."""
+    (a, b, c), (_, d, e), (_, _, f) = m.tolist()
+    ca, cd, cf = d * f - e * e, a * f - c * c, a * d - b * b
+    det = a * ca + b * (c * e - b * f) + c * (b * e - c * d)
+    if not det > 0.0:
+        return None
+    return (ca / det, cd / det, cf / det)
+
+
+def _mahalanobis2(info, lam_diag, d) -> float:
+    """``d^T (info^-1 + diag(lam_diag)^-1)^-1 d`` for a symmetric 3x3 ``info`` (plain floats:
+    it runs on every scan); inf when ``info`` is singular."""
+    (a, b, c), (_, e, f), (_, _, i) = info.tolist()
+    ca, cb, cc = e * i - f * f, c * f - b * i, b * f - c * e
+    det = a * ca + b * cb + c * cc
+    if not det > 0.0:
+        return math.inf
+    s = [[ca / det, cb / det, cc / det],
+         [cb / det, (a * i - c * c) / det, (b * c - a * f) / det],
+         [cc / det, (b * c - a * f) / det, (a * e - b * b) / det]]
+    for k in range(3):
+        s[k][k] += 1.0 / float(lam_diag[k])
+    sol = _solve_small(s, [float(v) for v in d])
+    return math.inf if sol is None else float(sol[0] * d[0] + sol[1] * d[1] + sol[2] * d[2])
 
 
 def _inverse(info) -> np.ndarray:

@@ -27,6 +27,27 @@ rarely does). For ROBOTLASER1 the line's ``maximum_range`` is used instead. Read
 above the no-return value (within 5 mm) are no return; :attr:`CarmenLog.range_max` is that
 value, so ``Scan.valid()`` never treats them as obstacles.
 
+Poses: by CARMEN's format the FLASER ``x y theta`` is the pose of the *laser* (the robot pose
+moved by ``robot_frontlaser_offset`` along its heading) and ``odom_x odom_y odom_theta`` the
+robot's odometry pose. In the corrected logs (intel, aces, freiburg-079) both carry the same
+SLAM-corrected pose (freiburg declares a front laser offset of -0.04 m, yet its two poses are
+identical), so the corrected pose is taken as the laser's: the scan frame's pose.
+
+Messy time stamps (each kind reported once, with its count, in :attr:`CarmenLog.issues` and
+one warning; the rest of the log is used; ``strict=True`` refuses the log instead, with the
+file and the first offending line):
+
+* a line stamped negative (or not finite): skipped;
+* ODOM lines out of time order: a line stamped before the newest earlier ODOM line is
+  inserted in time order when it is at most :data:`REORDER_WINDOW` older; older, or stamped
+  exactly 0 after positive stamps (the corrected logs interleave their corrected poses as ODOM
+  lines stamped 0), it is dropped. Laser lines out of order are kept in file order (counted;
+  ``import-carmen`` writes them in time order);
+* stamps printed with too few digits to be distinct (intel's ODOM lines: ``2665.42`` eleven
+  times): a run of equal stamps is spread evenly up to the next distinct stamp;
+* ODOM lines and the laser lines' odometry fields that disagree (by more than
+  :data:`ODOMETRY_TOLERANCE` at the laser stamps): the ODOM lines are used (:meth:`odometry`).
+
 Errors: a malformed line, a file that cannot be read, or a truncated gzip stream raise
 :class:`laser_tracker.errors.InputFileError` naming the file and the line number.
 """
@@ -50,6 +71,11 @@ log = logging.getLogger(__name__)
 #: Readings within this distance below the no-return value count as no return (CARMEN logs
 #: print centimetres).
 NO_RETURN_TOLERANCE = 0.005
+#: An ODOM line at most this much (s) older than the newest earlier one is re-ordered; an
+#: older one is dropped.
+REORDER_WINDOW = 1.0
+#: ODOM lines and laser-line odometry closer than this (m, rad) at a laser stamp agree.
+ODOMETRY_TOLERANCE = (0.05, math.radians(2.0))
 
 
 def flaser_geometry(n_beams: int) -> tuple[float, float]:
@@ -69,8 +95,9 @@ class CarmenLog:
     as logged (no-return readings keep their logged value; see :meth:`scan`),
     ``laser_poses`` (N, 3) the laser pose of each line, ``odom_poses`` (N, 3) the robot's
     odometry pose of each line; ``odom_stamps`` (M,), ``odom_stream`` (M, 3) and
-    ``odom_velocities`` (M, 2: tv, rv) the ODOM lines in file order (stamps may go backwards
-    in some logs); ``line_numbers`` (N,) where each laser line is (1-based).
+    ``odom_velocities`` (M, 2: tv, rv) the usable ODOM lines in time order with distinct
+    stamps (see the module docstring); ``line_numbers`` (N,) where each laser line is
+    (1-based); ``issues`` what was repaired or dropped, with counts.
     """
 
     path: str
@@ -88,6 +115,7 @@ class CarmenLog:
     line_numbers: np.ndarray
     no_return_value: float | None = None
     skipped: dict = field(default_factory=dict)
+    issues: dict = field(default_factory=dict)  # what was repaired or dropped -> count
 
     def __len__(self) -> int:
         return int(self.stamps.size)
@@ -167,26 +195,33 @@ def _count(token, path, lineno, what) -> int:
     return value
 
 
+class _BadStamp(Exception):
+    """A line whose time stamp is negative or not finite (skipped unless strict)."""
+
+
 def _stamp(value: float, path, lineno, what) -> float:
     if not math.isfinite(value) or value < 0:
-        raise InputFileError(path, f'{what}: time stamp must be finite and >= 0, got {value}',
-                             f'line {lineno}')
+        raise _BadStamp(InputFileError(
+            path, f'{what}: time stamp must be finite and >= 0, got {value}', f'line {lineno}'))
     return float(value)
 
 
-def read_carmen(path: str | Path, max_reading: float | None = None) -> CarmenLog:
+def read_carmen(path: str | Path, max_reading: float | None = None,
+                strict: bool = False) -> CarmenLog:
     """Parse a CARMEN log (plain or gzip). ``max_reading``: the no-return value (None: auto).
 
     Raises InputFileError (file + line) for a malformed line, a truncated gzip stream, a log
-    without laser lines, or scans whose beam count changes.
+    without laser lines, or scans whose beam count changes; with ``strict`` also for the
+    messy time stamps the module docstring lists (else repaired, counted in ``issues``).
     """
     path = Path(path)
     if not path.exists():
         raise InputFileError(path, 'no such file')
     flaser: list = []      # (lineno, stamp, ranges, laser pose, odom pose)
     robotlaser: list = []  # (lineno, stamp, ranges, laser pose, robot pose, geometry)
-    odom: list = []        # (stamp, x, y, theta, tv, rv)
+    odom: list = []        # (stamp, x, y, theta, tv, rv, lineno)
     skipped: dict[str, int] = {}
+    issues: dict[str, int] = {}
     lineno = 0
     try:
         fh = _open_text(path)
@@ -199,14 +234,20 @@ def read_carmen(path: str | Path, max_reading: float | None = None) -> CarmenLog
                 if not tokens or tokens[0].startswith('#'):
                     continue
                 kind = tokens[0]
-                if kind == 'FLASER':
-                    flaser.append(_parse_flaser(tokens, path, lineno))
-                elif kind == 'ROBOTLASER1':
-                    robotlaser.append(_parse_robotlaser(tokens, path, lineno))
-                elif kind == 'ODOM':
-                    odom.append(_parse_odom(tokens, path, lineno))
-                else:
-                    skipped[kind] = skipped.get(kind, 0) + 1
+                try:
+                    if kind == 'FLASER':
+                        flaser.append(_parse_flaser(tokens, path, lineno))
+                    elif kind == 'ROBOTLASER1':
+                        robotlaser.append(_parse_robotlaser(tokens, path, lineno))
+                    elif kind == 'ODOM':
+                        odom.append(_parse_odom(tokens, path, lineno) + (lineno,))
+                    else:
+                        skipped[kind] = skipped.get(kind, 0) + 1
+                except _BadStamp as bad:
+                    if strict:
+                        raise bad.args[0] from None
+                    _count_issue(issues, f'{kind} lines stamped negative or not finite: '
+                                 'skipped')
     except (EOFError, zlib.error, gzip.BadGzipFile) as exc:
         raise InputFileError(path, f'truncated or damaged gzip stream ({exc})',
                              f'line {lineno + 1}') from None
@@ -225,6 +266,8 @@ def read_carmen(path: str | Path, max_reading: float | None = None) -> CarmenLog
     else:
         raise InputFileError(path, 'no FLASER or ROBOTLASER1 lines (not a CARMEN laser log?)')
 
+    if not rows:
+        raise InputFileError(path, f'no {kind} line with a usable time stamp')
     n_beams = rows[0][2].size
     for row in rows:
         if row[2].size != n_beams:
@@ -252,18 +295,126 @@ def read_carmen(path: str | Path, max_reading: float | None = None) -> CarmenLog
     else:
         range_max = no_return
 
-    odom_arr = np.array(odom, dtype=np.float64).reshape(-1, 6)
+    lines = np.array([row[0] for row in rows], dtype=np.int64)
+    stamps = np.array([row[1] for row in rows])
+    back = np.flatnonzero(np.diff(stamps) < 0)
+    if back.size:
+        if strict:
+            raise InputFileError(path, f'{kind} stamp {stamps[back[0] + 1]} is before the '
+                                 f'previous laser line\'s ({stamps[back[0]]})',
+                                 f'line {lines[back[0] + 1]}')
+        _count_issue(issues, f'{kind} lines stamped before the previous laser line: kept '
+                     'in file order', int(back.size))
+    stamps = _spread_equal_stamps(stamps, path, lines, kind, strict, issues)
+    odom_arr, odom_lines = _clean_odometry(odom, path, strict, issues)
+    laser_poses = np.vstack([row[3] for row in rows])
+    odom_poses = np.vstack([row[4] for row in rows])
+    if odom_arr.shape[0] >= 2:
+        _compare_odometry(stamps, odom_poses, odom_arr, kind, issues)
+    for message, count in issues.items():
+        log.warning('%s: %d %s', path, count, message)
     return CarmenLog(
-        path=str(path), kind=kind,
-        stamps=np.array([row[1] for row in rows]),
+        path=str(path), kind=kind, stamps=stamps,
         ranges=ranges, angle_min=float(angle_min), angle_increment=float(angle_inc),
-        range_max=float(range_max),
-        laser_poses=np.vstack([row[3] for row in rows]),
-        odom_poses=np.vstack([row[4] for row in rows]),
+        range_max=float(range_max), laser_poses=laser_poses, odom_poses=odom_poses,
         odom_stamps=odom_arr[:, 0].copy(), odom_stream=odom_arr[:, 1:4].copy(),
-        odom_velocities=odom_arr[:, 4:6].copy(),
-        line_numbers=np.array([row[0] for row in rows], dtype=np.int64),
-        no_return_value=no_return, skipped=skipped)
+        odom_velocities=odom_arr[:, 4:6].copy(), line_numbers=lines,
+        no_return_value=no_return, skipped=skipped, issues=issues)
+
+
+def _count_issue(issues: dict, message: str, n: int = 1) -> None:
+    issues[message] = issues.get(message, 0) + n
+
+
+def _spread_equal_stamps(stamps: np.ndarray, path, lines, kind: str, strict: bool,
+                         issues: dict) -> np.ndarray:
+    """Runs of equal consecutive stamps spread evenly up to the next distinct stamp (the last
+    run by the median step); ``strict``: an error at the first repeated stamp."""
+    same = np.flatnonzero(np.diff(stamps) == 0)
+    if not same.size:
+        return stamps
+    if strict:
+        raise InputFileError(path, f'{kind} stamp {stamps[same[0]]} repeats the previous '
+                             f'{kind} line\'s (stamps printed with too few digits?)',
+                             f'line {lines[same[0] + 1]}')
+    _count_issue(issues, f'{kind} lines share their time stamp with the previous {kind} line '
+                 '(printed with too few digits?): spread evenly up to the next stamp',
+                 int(same.size))
+    out = stamps.astype(float).copy()
+    n = stamps.size
+    i = 0
+    while i < n:
+        j = i
+        while j + 1 < n and stamps[j + 1] == stamps[i]:
+            j += 1
+        if j > i:
+            if j + 1 < n and stamps[j + 1] > stamps[i]:
+                width = stamps[j + 1] - stamps[i]
+            else:  # the last run: the log's mean spacing per line so far
+                width = (j - i + 1) * ((stamps[i] - stamps[0]) / i if i else 0.01)
+            out[i:j + 1] = stamps[i] + width * np.arange(j - i + 1) / (j - i + 1)
+        i = j + 1
+    return out
+
+
+def _clean_odometry(odom: list, path, strict: bool, issues: dict):
+    """ODOM rows in time order with distinct stamps: (M, 6) array and their line numbers."""
+    kept: list = []
+    newest = -math.inf
+    n_sorted = n_dropped = n_unstamped = 0
+    for row in odom:
+        stamp, lineno = row[0], row[6]
+        if stamp < newest:
+            if strict:
+                raise InputFileError(path, f'ODOM stamp {stamp} is before an earlier ODOM '
+                                     f'line\'s ({newest})', f'line {lineno}')
+            if stamp == 0.0:
+                n_unstamped += 1
+                continue
+            if newest - stamp > REORDER_WINDOW:
+                n_dropped += 1
+                continue
+            n_sorted += 1
+        else:
+            newest = stamp
+        kept.append(row)
+    if n_unstamped:
+        _count_issue(issues, 'ODOM lines stamped 0 after later ones (no time stamp; the '
+                     'corrected logs interleave their corrected poses so): dropped', n_unstamped)
+    if n_dropped:
+        _count_issue(issues, f'ODOM lines stamped more than {REORDER_WINDOW:g} s before an '
+                     'earlier ODOM line: dropped', n_dropped)
+    if n_sorted:
+        _count_issue(issues, 'ODOM lines out of time order: sorted', n_sorted)
+    if not kept:
+        return np.zeros((0, 6)), np.zeros(0, dtype=np.int64)
+    arr = np.array([r[:6] for r in kept], dtype=np.float64)
+    lines = np.array([r[6] for r in kept], dtype=np.int64)
+    order = np.argsort(arr[:, 0], kind='stable')
+    arr, lines = arr[order], lines[order]
+    arr[:, 0] = _spread_equal_stamps(arr[:, 0], path, lines, 'ODOM', strict, issues)
+    return arr, lines
+
+
+def _compare_odometry(stamps, laser_odom, odom_arr, kind: str, issues: dict) -> None:
+    """Count the laser lines whose odometry fields disagree with the ODOM lines there."""
+    t = odom_arr[:, 0]
+    inside = (stamps >= t[0]) & (stamps <= t[-1])
+    if not inside.any():
+        return
+    q = stamps[inside]
+    x = np.interp(q, t, odom_arr[:, 1])
+    y = np.interp(q, t, odom_arr[:, 2])
+    th = np.interp(q, t, np.unwrap(odom_arr[:, 3]))
+    ref = laser_odom[inside]
+    dist = np.hypot(x - ref[:, 0], y - ref[:, 1])
+    turn = np.abs((th - ref[:, 2] + math.pi) % (2.0 * math.pi) - math.pi)
+    bad = (dist > ODOMETRY_TOLERANCE[0]) | (turn > ODOMETRY_TOLERANCE[1])
+    if bad.any():
+        _count_issue(issues, f'{kind} lines whose odometry fields disagree with the ODOM '
+                     f'lines (up to {dist.max():.2f} m, {math.degrees(turn.max()):.1f} deg): '
+                     'a raw log\'s odometry is taken from the ODOM lines',
+                     int(np.count_nonzero(bad)))
 
 
 def detect_max_reading(ranges: np.ndarray) -> float | None:

@@ -6,9 +6,21 @@ Writes ``/scan`` (sensor_msgs/LaserScan, frame ``laser``) and ``/odom`` (nav_msg
 * Beam geometry and the no-return value: see :mod:`laser_tracker.tools.carmen`. No-return
   readings are written as ``+inf`` (REP 117) and ``range_max`` is the log's maximum reading, so
   ``Scan.valid()`` and ``Scan.free_ranges()`` read them as "nothing seen up to range_max".
-* Odometry: the ODOM lines when the log has any (velocities tv, rv from the line), else the
-  odometry pose of each FLASER / ROBOTLASER1 line (no velocity). Messages are written in time
-  order (ODOM lines that go back in time in the log are sorted; a warning says how many).
+* Messy time stamps (negative, not distinct, out of order; ODOM lines that disagree with the
+  laser lines' odometry): repaired or dropped as :mod:`laser_tracker.tools.carmen` says, each
+  kind reported once with its count; ``--strict`` refuses such a log instead.
+* A raw log: odometry from the ODOM lines when the log has any (velocities tv, rv from the
+  line), else the odometry pose of each FLASER / ROBOTLASER1 line (no velocity).
+* A corrected log (``--corrected auto``: the log has NEFF lines, as the SLAM-corrected logs of
+  Radish do, or its name says ``corrected``): its laser poses are the SLAM-corrected
+  trajectory, not odometry. They are written as ``/ground_truth/platform`` (nav_msgs/Odometry,
+  frame ``map``, child the scan frame: CARMEN's FLASER ``x y theta`` is the laser's pose), and
+  ``/odom`` is a noisy copy of them, one sample per scan
+  (``--odometry-noise {none,realistic,poor}``, default realistic, ``--seed``; the models of
+  :mod:`laser_tracker.tools.odometry_noise`, the same as ``bench egomotion``); the log's own
+  ODOM lines are not written. The scanner sits at the platform origin (mount 0), so the
+  ego-motion needs no mounting parameters for it.
+* Messages are written in time order (laser lines that go back in time in the log are sorted).
 * The output appears only when complete (io.bag.BagWriter): a malformed or truncated log
   gives one error naming the file and line, exit status 2, and no output folder.
 """
@@ -22,10 +34,14 @@ import numpy as np
 
 from laser_tracker.conversions import PlanarOdometry, odometry_to_msg, scan_to_msg
 from laser_tracker.errors import InputFileError
-from laser_tracker.tools.bag import FACTORY, ODOM_TOPIC, SCAN_TOPIC, BagWriter
+from laser_tracker.tools import odometry_noise
+from laser_tracker.tools.bag import FACTORY, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC, SCAN_TOPIC, \
+    BagWriter
 from laser_tracker.tools.carmen import read_carmen
 
 log = logging.getLogger(__name__)
+
+DEFAULT_NOISE = 'realistic'
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,29 +53,55 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--storage', choices=('sqlite3', 'mcap'), default='sqlite3')
     parser.add_argument('--overwrite', action='store_true', help='replace OUT if it exists')
     parser.add_argument('--frame', default='laser', help='frame_id of /scan (default laser)')
+    parser.add_argument('--strict', action='store_true',
+                        help='refuse a log with negative, repeated or out-of-order time stamps '
+                             '(default: repair or drop those lines and report each kind once)')
+    parser.add_argument('--corrected', choices=('auto', 'yes', 'no'), default='auto',
+                        help='the laser poses are a SLAM-corrected trajectory (auto: the log '
+                             'has NEFF lines or its name says "corrected")')
+    parser.add_argument('--odometry-noise', choices=odometry_noise.MODELS, default=None,
+                        help='corrected logs: /odom is the corrected trajectory with this noise '
+                             f'(default {DEFAULT_NOISE})')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the odometry noise (default 0)')
+
+
+def is_corrected(carmen, log_path) -> bool:
+    """A SLAM-corrected log: NEFF lines (the particle filter's effective sample size) or a
+    name that says so."""
+    return bool(carmen.skipped.get('NEFF')) or 'corrected' in Path(log_path).name.lower()
 
 
 def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
-            frame_id='laser') -> dict:
+            frame_id='laser', strict=False, corrected='auto', odometry_noise_model=None,
+            seed=0) -> dict:
     """Convert; returns counts ``{'scans': N, 'odometry': M, 'odometry_source': ...}``."""
     if Path(out).exists() and not overwrite:
         raise InputFileError(out, 'output already exists (use --overwrite or another name)')
-    carmen = read_carmen(log_path, max_reading=max_reading)
-    o_stamps, o_poses, o_vel, source = carmen.odometry()
-    order = np.argsort(o_stamps, kind='stable')
-    n_back = int(np.count_nonzero(np.diff(o_stamps) < 0))
-    if n_back:
-        log.warning('%s: %d odometry lines go back in time; written in time order',
-                    log_path, n_back)
+    carmen = read_carmen(log_path, max_reading=max_reading, strict=strict)
+    reference = corrected == 'yes' or (corrected == 'auto' and is_corrected(carmen, log_path))
+    if odometry_noise_model is not None and not reference:
+        raise InputFileError(log_path, '--odometry-noise is for corrected logs (this one '
+                             'carries raw odometry; use --corrected yes if it is corrected)')
     s_order = np.argsort(carmen.stamps, kind='stable')
-    n_back_scans = int(np.count_nonzero(np.diff(carmen.stamps) < 0))
-    if n_back_scans:
-        log.warning('%s: %d laser lines go back in time; written in time order', log_path,
-                    n_back_scans)
+    stamps = carmen.stamps[s_order]
+    truth = None
+    if reference:
+        noise = odometry_noise_model or DEFAULT_NOISE
+        truth = carmen.laser_poses[s_order]
+        o_stamps = stamps
+        o_poses = odometry_noise.noisy_odometry(truth, noise, seed)
+        o_vel = np.zeros((stamps.size, 2))
+        source = f'the corrected poses with {noise} noise (seed {seed})'
+    else:
+        o_stamps, o_poses, o_vel, kind = carmen.odometry()
+        source = f'{kind} lines'
     ranges = carmen.scan_ranges()
-    # Merge both streams by time so the bag's receive times are monotonic.
-    events = [(float(carmen.stamps[i]), 0, int(i)) for i in s_order]
-    events += [(float(o_stamps[j]), 1, int(j)) for j in order]
+    # Merge the streams by time so the bag's receive times are monotonic.
+    events = [(float(stamps[k]), 0, int(i)) for k, i in enumerate(s_order)]
+    events += [(float(o_stamps[j]), 1, int(j)) for j in range(o_stamps.size)]
+    if truth is not None:
+        events += [(float(stamps[k]), 2, k) for k in range(stamps.size)]
     events.sort(key=lambda e: (e[0], e[1]))
     try:
         with BagWriter(out, storage=storage, overwrite=overwrite) as bag:
@@ -67,24 +109,35 @@ def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
                 if what == 0:
                     scan = carmen.scan(idx, frame_id=frame_id, ranges=ranges)
                     bag.write(SCAN_TOPIC, scan_to_msg(FACTORY, scan), stamp)
-                else:
+                elif what == 1:
                     x, y, th = o_poses[idx]
                     odom = PlanarOdometry(stamp=stamp, x=float(x), y=float(y),
                                           theta=float(th), vx=float(o_vel[idx, 0]),
                                           omega=float(o_vel[idx, 1]))
                     bag.write(ODOM_TOPIC, odometry_to_msg(FACTORY, odom), stamp)
+                else:
+                    x, y, th = truth[idx]
+                    pose = PlanarOdometry(stamp=stamp, x=float(x), y=float(y), theta=float(th),
+                                          frame_id='map', child_frame_id=frame_id)
+                    bag.write(PLATFORM_TRUTH_TOPIC, odometry_to_msg(FACTORY, pose), stamp)
     except FileExistsError as exc:
         raise InputFileError(out, 'output already exists (use --overwrite or another name)') \
             from exc
     return {'scans': len(carmen), 'odometry': int(o_stamps.size), 'odometry_source': source,
-            'beams': carmen.n_beams, 'range_max': carmen.range_max}
+            'ground_truth': 0 if truth is None else int(truth.shape[0]),
+            'beams': carmen.n_beams, 'range_max': carmen.range_max,
+            'issues': dict(carmen.issues)}
 
 
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     counts = convert(args.log, args.out, max_reading=args.max_reading, storage=args.storage,
-                     overwrite=args.overwrite, frame_id=args.frame)
+                     overwrite=args.overwrite, frame_id=args.frame, strict=args.strict,
+                     corrected=args.corrected, odometry_noise_model=args.odometry_noise,
+                     seed=args.seed)
     print(f'{args.out}: {counts["scans"]} scans ({counts["beams"]} beams, no return = '
           f'{counts["range_max"]:g} m written as inf) on {SCAN_TOPIC}, {counts["odometry"]} '
-          f'odometry messages from {counts["odometry_source"]} lines on {ODOM_TOPIC}')
+          f'odometry messages from {counts["odometry_source"]} on {ODOM_TOPIC}'
+          + (f', {counts["ground_truth"]} corrected poses on {PLATFORM_TRUTH_TOPIC}'
+             if counts['ground_truth'] else ''))
     return 0
