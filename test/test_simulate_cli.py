@@ -142,3 +142,11 @@ def test_tf_static_carries_the_scanner_mount(tmp_path):
     (origin,) = transforms_from_msg(msg)
     assert (origin.parent, origin.child) == ('base_link', 'laser')
     assert (origin.x, origin.y, origin.yaw) == (0.0, 0.0, 0.0)
+
+
+def test_bundled_recording_names_work_for_summarize_and_replay(tmp_path, capsys):
+    assert main(['summarize', 'exp3_rotating_static']) == 0
+    assert 'exp3_rotating_static' in capsys.readouterr().out
+    assert main(['replay', 'exp3_rotating_static', '--out', str(tmp_path / 'r'),
+                 '--no-progress']) == 0
+    assert (tmp_path / 'r' / 'tracks.csv').is_file()

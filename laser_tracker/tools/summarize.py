@@ -16,7 +16,7 @@ import numpy as np
 
 from laser_tracker.conversions import (objects_from_marker_array, odometry_from_msg,
                                        stamp_to_sec)
-from laser_tracker.tools.bag import GROUND_TRUTH_TOPIC, iter_messages, topics
+from laser_tracker.tools.bag import GROUND_TRUTH_TOPIC, iter_messages, resolve_bag, topics
 
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 ODOM_TYPE = 'nav_msgs/msg/Odometry'
@@ -34,8 +34,9 @@ def _rate(stamps: list[float]) -> float:
 
 
 def summarize(path: str | Path) -> str:
-    """The summary text of the recording at ``path`` (raises InputFileError if unreadable)."""
-    path = Path(path)
+    """The summary text of the recording at ``path``, or of the bundled recording of that
+    name (raises InputFileError if unreadable)."""
+    path = resolve_bag(path)
     info = topics(path)
     wanted = [t for t, (typ, _) in info.items() if typ in (SCAN_TYPE, ODOM_TYPE)]
     if GROUND_TRUTH_TOPIC in info and info[GROUND_TRUTH_TOPIC][0] == MARKERS_TYPE:
