@@ -316,32 +316,33 @@ class StaticBackground:
         self.threshold = float(config.static_occupied)
         self.max_step = float(config.static_max_step)
         self.previous: float | None = None
-        self.size = int(size)
-        n = self.size * self.size
+        self.bits = max(1, int(size - 1).bit_length())      # size: a power of two
+        self.mask = (1 << self.bits) - 1
+        n = 1 << (2 * self.bits)
         self.key = np.full(n, np.iinfo(np.int64).min, np.int64)
         self.count = np.zeros(n, np.float64)
         self.last = np.zeros(n, np.float64)
+        r = np.arange(-1, 2)
+        self._around = np.stack(np.meshgrid(r, r, indexing='ij'), axis=-1).reshape(-1, 2)
 
-    def _cells(self, xy: np.ndarray):
-        ij = np.floor(xy / self.resolution).astype(np.int64)
-        key = ij[:, 0] * 2_000_003 + ij[:, 1]
-        slot = (ij[:, 0] % self.size) * self.size + (ij[:, 1] % self.size)
-        return ij, key, slot
+    def _slots(self, ij: np.ndarray):
+        """Key and slot of integer cells ``ij`` (..., 2)."""
+        key = (ij[..., 0] << 32) + ij[..., 1]
+        slot = ((ij[..., 0] & self.mask) << self.bits) | (ij[..., 1] & self.mask)
+        return key, slot
 
-    def counts(self, xy: np.ndarray, stamp: float, neighbourhood: int = 1) -> np.ndarray:
-        """The largest decayed count among the cells within ``neighbourhood`` cells of each
-        point ``xy`` (k, 2; odometry frame)."""
+    def counts(self, xy: np.ndarray, stamp: float) -> np.ndarray:
+        """The largest decayed occupancy (s) among the cells within one cell of each point
+        ``xy`` (k, 2; odometry frame)."""
         if xy.shape[0] == 0:
             return np.zeros(0)
-        ij, _, _ = self._cells(xy)
-        r = np.arange(-neighbourhood, neighbourhood + 1)
-        dx, dy = np.meshgrid(r, r, indexing='ij')
-        nij = ij[:, None, :] + np.stack((dx.ravel(), dy.ravel()), axis=1)[None]
-        key = nij[..., 0] * 2_000_003 + nij[..., 1]
-        slot = (nij[..., 0] % self.size) * self.size + (nij[..., 1] % self.size)
-        mine = self.key[slot] == key
-        value = np.where(mine, self.count[slot]
-                         * np.exp(-(stamp - self.last[slot]) / self.tau), 0.0)
+        ij = np.floor(xy * (1.0 / self.resolution)).astype(np.int64)
+        key, slot = self._slots(ij[:, None, :] + self._around[None])
+        value = np.zeros(key.shape)
+        mine = np.flatnonzero(self.key[slot] == key)
+        if mine.size:
+            s = slot.ravel()[mine]
+            value.ravel()[mine] = self.count[s] * np.exp((self.last[s] - stamp) / self.tau)
         return value.max(axis=1)
 
     def static(self, xy: np.ndarray, stamp: float) -> np.ndarray:
@@ -349,19 +350,19 @@ class StaticBackground:
         return self.counts(xy, stamp) >= self.threshold
 
     def add(self, xy: np.ndarray, stamp: float) -> None:
-        """One scan's end points (odometry frame) hit their cells (once per cell), each
-        adding the time since the previous scan (at most ``max_step``)."""
-        step = self.max_step if self.previous is None else \
+        """One scan's end points (odometry frame) hit their cells, each cell once, adding the
+        time since the previous scan (at most ``max_step``)."""
+        step = 0.0 if self.previous is None else \
             min(max(stamp - self.previous, 0.0), self.max_step)
         self.previous = stamp
         if xy.shape[0] == 0:
             return
-        _, key, slot = self._cells(xy)
-        slot, first = np.unique(slot, return_index=True)
-        key = key[first]
-        mine = self.key[slot] == key
-        decayed = np.where(mine, self.count[slot]
-                           * np.exp(-(stamp - self.last[slot]) / self.tau), 0.0)
+        ij = np.floor(xy * (1.0 / self.resolution)).astype(np.int64)
+        key, slot = self._slots(ij)
+        # Several points of one cell write the same value: each cell counts once.
+        decayed = np.where(self.key[slot] == key,
+                           self.count[slot] * np.exp((self.last[slot] - stamp) / self.tau),
+                           0.0)
         self.key[slot] = key
         self.count[slot] = decayed + step
         self.last[slot] = stamp

@@ -1,0 +1,112 @@
+"""Motion evidence beyond Eq. 1: free space remembered over a short window, and the static
+background (how long each place of the odometry frame has been seen occupied)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from laser_tracker.core.difference import DifferenceConfig, StaticBackground
+from laser_tracker.core.scan import Scan
+from laser_tracker.core.stages import Detector, StampedPose
+from laser_tracker.core.difference import PoseQuality
+
+
+def test_a_wall_seen_for_a_second_is_static_a_passer_by_is_not():
+    bg = StaticBackground(0.1, DifferenceConfig(static_time=10.0, static_occupied=0.75))
+    wall = np.column_stack((np.linspace(0, 3, 31), np.full(31, 2.0)))
+    for k in range(6):                      # 5 Hz: 1.2 s of the wall
+        t = 0.2 * k
+        leg = np.array([[0.5 + 0.2 * k, 0.0]])   # a leg moving 1 m/s, one scan per cell
+        bg.add(np.vstack((wall, leg)), t)
+    assert bg.static(wall + 0.03, 1.2).all()                 # registration error tolerated
+    assert not bg.static(np.array([[1.5, 0.0]]), 1.2).any()  # the leg's path: 0.2 s each
+    assert not bg.static(np.array([[1.5, 1.0]]), 1.2).any()  # never seen
+    # decays: a minute later the wall is forgotten
+    assert not bg.static(wall, 70.0).any()
+
+
+def test_background_counts_seconds_not_scans():
+    """The same place seen for the same time is static at 4 Hz and at 75 Hz alike."""
+    cfg = DifferenceConfig(static_time=10.0, static_occupied=0.75)
+    for rate in (4.0, 75.0):
+        bg = StaticBackground(0.1, cfg)
+        point = np.array([[1.0, 1.0]])
+        for k in range(int(0.5 * rate)):     # half a second: not yet static
+            bg.add(point, k / rate)
+        assert not bg.static(point, 0.5)
+        for k in range(int(0.5 * rate), int(1.0 * rate) + 1):
+            bg.add(point, k / rate)
+        assert bg.static(point, 1.0), rate
+
+
+def test_far_away_cells_sharing_a_slot_do_not_alias():
+    bg = StaticBackground(0.1, DifferenceConfig(static_time=10.0, static_occupied=0.1),
+                          size=64)
+    here = np.array([[1.05, 1.05]])
+    there = here + 6.4 * 3                  # 3 grid sizes away: the same slots
+    for k in range(5):
+        bg.add(here, 0.2 * k)
+    assert bg.static(here, 1.0) and not bg.static(there, 1.0)
+
+
+def _room_scan(stamp, pose, post=None):
+    """A scanner at ``pose`` in a 10 x 10 m room; optionally a 0.15 m post at ``post``."""
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
+    x, y, th = pose
+    d = np.column_stack((np.cos(th + angles), np.sin(th + angles)))
+    with np.errstate(divide='ignore'):
+        tx = np.where(d[:, 0] > 0, (5 - x) / d[:, 0], np.where(d[:, 0] < 0, (-5 - x) / d[:, 0],
+                                                                np.inf))
+        ty = np.where(d[:, 1] > 0, (5 - y) / d[:, 1], np.where(d[:, 1] < 0, (-5 - y) / d[:, 1],
+                                                                np.inf))
+    r = np.minimum(tx, ty)
+    if post is not None:
+        c = np.asarray(post) - (x, y)
+        b = d @ c
+        disc = b * b - (c @ c - 0.15 ** 2)
+        r = np.where((disc > 0) & (b > 0), np.minimum(r, b - np.sqrt(np.maximum(disc, 0))), r)
+    return Scan(stamp=stamp, ranges=r, angle_min=-math.pi / 2, angle_increment=math.pi / 360,
+                range_min=0.05, range_max=8.0)
+
+
+def _pose(stamp, pose):
+    return StampedPose(stamp=stamp, pose=np.asarray(pose, float), motion=np.zeros(3),
+                       motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
+                       quality=PoseQuality())
+
+
+def test_structure_seen_before_is_never_a_change_with_the_static_background():
+    """A post that stood in view for seconds, hidden for one scan then misregistered by
+    0.15 m (an ego-motion slip), is not a moving object with the background; it is without."""
+    def run(static_time):
+        det = Detector(difference=DifferenceConfig(static_time=static_time, memory=0,
+                                                   free_window=0.0))
+        blobs = 0
+        for k in range(12):
+            t = 0.2 * k
+            post = (3.0, 1.0) if k < 10 else (3.0, 1.15)     # the slip
+            hidden = k == 9                                  # not seen just before it
+            out = det.update(_room_scan(t, (0, 0, 0), None if hidden else post),
+                             _pose(t, (0, 0, 0)))
+            if k >= 10:
+                blobs += out.blobs.count
+        return blobs
+    assert run(0.0) > 0
+    assert run(10.0) == 0
+
+
+def test_free_window_sees_a_walker_entering_the_previous_scans_shadow():
+    """The cell a walker steps into was hidden (in its own shadow) in the previous scan but
+    seen free just before: a change with a free window, none with Eq. 1 alone."""
+    def run(window):
+        det = Detector(difference=DifferenceConfig(free_window=window, memory=0,
+                                                   static_time=0.0, motion_depth=0.0))
+        seen = []
+        posts = [None, None, (3.0, 0.0), (3.3, 0.0)]   # appears at 3.0, then steps back to
+        for k, post in enumerate(posts):              # 3.3, into its own shadow
+            t = 0.1 * k
+            seen.append(det.update(_room_scan(t, (0, 0, 0), post), _pose(t, (0, 0, 0))))
+        return seen[-1].blobs.count
+    assert run(0.0) == 0
+    assert run(0.3) > 0
