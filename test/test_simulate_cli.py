@@ -100,7 +100,7 @@ def test_existing_output_needs_overwrite(tmp_path, capsys):
 
 def test_summarize_of_a_missing_bag_is_a_clear_error(tmp_path, capsys):
     assert main(['summarize', str(tmp_path / 'nothing')]) == 2
-    assert 'no such file' in capsys.readouterr().err
+    assert 'no such recording' in capsys.readouterr().err
 
 
 def test_tf_static_carries_the_scanner_mount(tmp_path):
