@@ -27,7 +27,7 @@ bench: setup
 	$(BIN)/laser-tracker bench all
 
 bags: setup
-	$(BIN)/laser-tracker simulate all bags
+	$(BIN)/laser-tracker simulate all bags --overwrite
 
 clean:
 	rm -rf $(VENV) build install log out *.egg-info

@@ -14,8 +14,9 @@ and the tracker's ``tracks`` topic, is documented in README.md ("Topics and sche
   ``pose.position`` = the object's centre (x, y; z = 0), ``pose.orientation`` = identity;
   ``points = [(0, 0, 0), (vx, vy, 0)]`` relative to the pose, i.e. the velocity in m/s
   (RViz draws an arrow covering one second of travel);
-  ``text`` = a JSON object with the extra fields (``kind`` for ground truth; ``weight``,
-  ``confirmed``, ``samples`` for tracks).
+  ``text`` = a JSON object with the extra fields (``kind``, ``visible``, ``beams`` for ground
+  truth; ``weight``, ``confirmed``, ``samples``, ``kind``, ``moving``, ``covariance`` for
+  tracks: :func:`tracks_to_objects`).
 """
 from __future__ import annotations
 
@@ -332,7 +333,7 @@ def ego_motion_to_msgs(factory: MessageFactory, pose):
     started), and the twist (the motion since the previous scan over its duration, in the
     scanner frame) with its covariance. The DiagnosticArray (``ego_motion/status``, same
     stamp) carries what the detection gate reads: ``source`` (icp, icp_partial, odometry,
-    motion_model, init), ``motion_variance`` (x, y, yaw variances of that motion; 1e6 each
+    constant_velocity, init), ``motion_variance`` (x, y, yaw variances of that motion; 1e6 each
     when the scan match was refused), ``unmatched`` (fraction of the scan's points the match
     left unexplained), ``restarted`` (the pose chain restarted here: odometry-frame history is
     void), ``trusted`` (for people reading it: whether the default gate trusts it) and

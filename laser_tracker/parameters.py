@@ -34,8 +34,8 @@ from laser_tracker.sick.config import SickLmsConfig
 
 #: Parameters that every ROS node has (rclpy declares them itself): accepted for every node.
 ROS_BUILTIN: dict[str, Any] = {'use_sim_time': False}
-#: Parameter name prefixes that ROS itself interprets (QoS overrides of publishers).
-ROS_BUILTIN_PREFIXES = ('qos_overrides.',)
+#: Parameter name prefixes that ROS itself interprets (none used by these nodes).
+ROS_BUILTIN_PREFIXES: tuple[str, ...] = ()
 COMMAND_LINE = 'command line'
 
 
@@ -139,7 +139,8 @@ def field_of(node: str, name: str):
 
 
 def is_builtin(name: str) -> bool:
-    return name in ROS_BUILTIN or name.startswith(ROS_BUILTIN_PREFIXES)
+    return name in ROS_BUILTIN or bool(ROS_BUILTIN_PREFIXES) and \
+        name.startswith(ROS_BUILTIN_PREFIXES)
 
 
 def check_parameter(node: str, name: str, value: Any, source: str = '') -> Any:

@@ -24,7 +24,7 @@ DATA = real_data() / 'carmen'
 def _real(name: str) -> Path:
     path = DATA / name
     if not path.exists():
-        pytest.skip(f'../shared/data/carmen/{name} not found (real data lives beside the repo)')
+        pytest.skip(f'{DATA / name} not found (the public recordings: $LASER_TRACKER_DATA)')
     return path
 
 
@@ -135,6 +135,11 @@ def test_import_reproduces_scan_count_and_ranges(tmp_path, capsys, name):
     assert info['/odom'][1] == len(flaser)   # a corrected log: one noisy sample per scan;
     corrected = 'corrected' in name           # mit-csail: no ODOM lines, the FLASER odometry
     assert ('/ground_truth/platform' in info) == corrected
+    assert info['/tf_static'][1] == 1                   # the scanner at the platform origin
+    from laser_tracker.tools.mount import recording_mount
+    from laser_tracker.core.egomotion import EgoMotionConfig
+    mount = recording_mount(out, '/scan', '/odom', EgoMotionConfig())
+    assert mount.from_recording and (mount.x, mount.y, mount.yaw) == (0.0, 0.0, 0.0)
     scans = list(read_scans(out))
     assert len(scans) == len(flaser)
     # the bag is in time order; the log may not be: match scans to lines by stamp

@@ -617,8 +617,8 @@ REAL_CASES = [('intel-corrected.log.gz', 'poor'), ('aces-corrected.log.gz', 'poo
 def _bench(name, noise):
     path = DATA / name
     if not path.exists():
-        pytest.skip(f'../shared/data/carmen/{name} not found '
-                    '(real data lives beside the repo)')
+        pytest.skip(f'{DATA / name} not found '
+                    '(the public recordings: $LASER_TRACKER_DATA)')
     from laser_tracker.tools.bench_egomotion import bench_log, kiss_available
     return bench_log(path, seed=0, with_kiss=kiss_available(), noise=noise)
 

@@ -29,7 +29,7 @@ ROS1.register(get_types_from_msg('geometry_msgs/TransformStamped[] transforms',
 
 def _leg_bag():
     if not LEG_BAG.is_file():
-        pytest.skip(f'{LEG_BAG} not found (real data lives beside the repo, in ../shared/data)')
+        pytest.skip(f'{LEG_BAG} not found (the public recordings: $LASER_TRACKER_DATA)')
     return LEG_BAG
 
 

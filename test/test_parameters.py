@@ -183,3 +183,25 @@ def test_the_committed_files_load_with_every_node():
         assert set(loaded) == set(parameters.NODE_SECTIONS)
     assert math.isfinite(parameters.load_files([])['ego_motion'].sections[''].odom_wait)
     assert np.isclose(parameters.defaults()['tracking']['hypotheses.w_inc'], 60.0)
+
+
+def test_a_plain_override_reaches_the_node_that_has_it_in_a_composed_process(ros_context):
+    """``-p hypotheses.gate:=1.0`` reaches every node of laser_tracker_all: the tracking node
+    takes it, the others leave it; a name no node has is still refused."""
+    from rclpy.parameter import Parameter
+
+    from laser_tracker.nodes.ego_motion import EgoMotionNode
+    from laser_tracker.nodes.tracking import TrackingNode
+
+    gate = [Parameter('hypotheses.gate', value=1.0)]
+    ego = EgoMotionNode(context=ros_context, parameter_overrides=gate)
+    tracking = TrackingNode(context=ros_context, parameter_overrides=gate)
+    try:
+        assert tracking.stage.config.gate == 1.0
+        assert not ego.has_parameter('hypotheses.gate')
+    finally:
+        ego.destroy_node()
+        tracking.destroy_node()
+    with pytest.raises(ConfigError, match="unknown parameter 'hypotheses.gaet'"):
+        EgoMotionNode(context=ros_context,
+                      parameter_overrides=[Parameter('hypotheses.gaet', value=1.0)])

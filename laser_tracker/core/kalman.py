@@ -14,7 +14,7 @@ velocity times the elapsed time, and a supported hypothesis moves to its blob.
 
 Alternative mode ``cv``: the full constant-velocity filter on [x, y, vx, vy] with the blob
 position as measurement (white-acceleration process noise), measured against the paper mode
-in README.md (Method).
+in README.md (Results).
 
 Every function takes stacked arrays: states (k, d) and covariances (k, d, d); there is no
 per-hypothesis Python loop. :class:`TrackFilter` gives the tracker one interface over both

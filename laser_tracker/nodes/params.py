@@ -81,13 +81,18 @@ class LiveParameters:
         overrides = {name: p.value for name, p in node._parameter_overrides.items()}
         # What rclpy resolved for this node, each value attributed to its file (or -p).
         from_files = registry.load(entries, nodes=[node_name], namespace=namespace)
+        # A name no node of ours has is an error; one of another of our nodes is for that
+        # node (``-p`` reaches every node of a process, e.g. in laser_tracker_all).
         unknown = sorted(n for n in overrides
                          if registry.field_of(node_name, n) is None
-                         and not registry.is_builtin(n))
+                         and not registry.is_builtin(n)
+                         and not any(registry.field_of(other, n) is not None
+                                     for other in registry.NODE_SECTIONS))
         if unknown:
             src = from_files[node_name].sources.get(unknown[0]) or registry.COMMAND_LINE
             raise ConfigError(f'{src}: node {node_name}: unknown parameter {unknown[0]!r}')
-        raw = {n: v for n, v in overrides.items() if not registry.is_builtin(n)}
+        raw = {n: v for n, v in overrides.items()
+               if registry.field_of(node_name, n) is not None}
         sources = dict(from_files[node_name].sources)
         for name in raw:
             sources.setdefault(name, registry.COMMAND_LINE)

@@ -1,6 +1,6 @@
 """Recordings: rosbag2 (sqlite3 or mcap) written with rosbags; rosbag2 and ROS 1 bags read.
 
-Topics of a laser_tracker recording (README.md, "Topics and schemas"):
+Topics of a laser_tracker recording (README.md, "Bundled recordings"):
 ``/scan`` sensor_msgs/LaserScan, ``/odom`` nav_msgs/Odometry, ``/ground_truth``
 visualization_msgs/MarkerArray (the moving-object schema of ``laser_tracker.conversions``),
 ``/ground_truth/platform`` nav_msgs/Odometry (the platform's true pose).

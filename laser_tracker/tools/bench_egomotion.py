@@ -74,7 +74,7 @@ KISS_SETTINGS = dict(voxel_size=0.1, max_range=12.0, max_points_per_voxel=20,
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('logs', nargs='*', help='CARMEN logs with corrected poses (default: '
                         'intel-corrected, aces-corrected and freiburg-079-part1-corrected in '
-                        '../shared/data/carmen)')
+                        'the carmen folder of $LASER_TRACKER_DATA)')
     parser.add_argument('--noise', type=_noise_list, default=list(DEFAULT_NOISE),
                         help='odometry noise models, comma-separated, of '
                         f'{", ".join(odometry_noise.MODELS)} (default: '
@@ -94,7 +94,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'reference poses, started near the reference (default N: 5 20 100); '
                         'prints the floor it reaches, then exits')
     parser.add_argument('--raw-log', default=None,
-                        help=f'raw log for the figure (default ../shared/data/carmen/{RAW_LOG})')
+                        help=f'raw log for the figure (default {DATA / RAW_LOG})')
 
 
 def _noise_list(text: str) -> list[str]:
@@ -407,7 +407,7 @@ def run(args: argparse.Namespace) -> int:
     if args.oracle is not None:
         for path in logs:
             if not path.exists():
-                print(f'{path}: not found (real data lives in ../shared/data beside the repo)')
+                print(f'{path}: not found (the public recordings: $LASER_TRACKER_DATA, see README.md)')
                 status = 1
                 continue
             for n_map in args.oracle or (5, 20, 100):
@@ -418,7 +418,7 @@ def run(args: argparse.Namespace) -> int:
         return status
     for path in ([] if args.figure_only else logs):
         if not path.exists():
-            print(f'{path}: not found (real data lives in ../shared/data beside the repo)')
+            print(f'{path}: not found (the public recordings: $LASER_TRACKER_DATA, see README.md)')
             status = 1
             continue
         for noise in args.noise:

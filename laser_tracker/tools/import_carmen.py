@@ -1,7 +1,9 @@
 """``laser-tracker import-carmen LOG OUT``: a CARMEN log (plain or gzip) to a rosbag2 recording.
 
 Writes ``/scan`` (sensor_msgs/LaserScan, frame ``laser``) and ``/odom`` (nav_msgs/Odometry,
-``odom`` -> ``base_link``), both stamped with the log's ipc time stamps.
+``odom`` -> ``base_link``), both stamped with the log's ipc time stamps, and ``/tf_static``
+(the scanner at the platform's origin, ``base_link`` -> ``laser``: CARMEN's laser poses are
+the robot's in these logs).
 
 * Beam geometry and the no-return value: see :mod:`laser_tracker.tools.carmen`. No-return
   readings are written as ``+inf`` (REP 117) and ``range_max`` is the log's maximum reading, so
@@ -32,11 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-from laser_tracker.conversions import PlanarOdometry, odometry_to_msg, scan_to_msg
+from laser_tracker.conversions import (PlanarOdometry, PlanarTransform, odometry_to_msg,
+                                       scan_to_msg, transforms_to_msg)
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools import odometry_noise
-from laser_tracker.tools.bag import FACTORY, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC, SCAN_TOPIC, \
-    BagWriter
+from laser_tracker.tools.bag import (FACTORY, LATCHED_QOS, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC,
+                                     SCAN_TOPIC, TF_STATIC_TOPIC, BagWriter)
 from laser_tracker.tools.carmen import read_carmen
 
 log = logging.getLogger(__name__)
@@ -105,6 +108,9 @@ def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
     events.sort(key=lambda e: (e[0], e[1]))
     try:
         with BagWriter(out, storage=storage, overwrite=overwrite) as bag:
+            mount = PlanarTransform(0.0, 'base_link', frame_id, 0.0, 0.0, 0.0)
+            bag.write(TF_STATIC_TOPIC, transforms_to_msg(FACTORY, [mount]),
+                      events[0][0] if events else 0.0, qos=LATCHED_QOS)
             for stamp, what, idx in events:
                 if what == 0:
                     scan = carmen.scan(idx, frame_id=frame_id, ranges=ranges)

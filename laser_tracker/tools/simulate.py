@@ -3,7 +3,7 @@
 ``laser-tracker simulate all bags/`` regenerates every bundled recording (bags/<name>/);
 ``--list`` lists the scenarios. The same scenario and seed always give the same messages.
 
-Topics (README.md, "Topics and schemas"): ``/scan`` (sensor_msgs/LaserScan, frame ``laser``,
+Topics (README.md, "Bundled recordings"): ``/scan`` (sensor_msgs/LaserScan, frame ``laser``,
 stamp = first beam, received ``receive_delay`` later), ``/odom`` (nav_msgs/Odometry
 ``odom`` -> ``base_link``, received at its stamp), ``/ground_truth`` (visualization_msgs/
 MarkerArray, the moving-object schema in frame ``map``, one per scan at the scan's stamp) and
