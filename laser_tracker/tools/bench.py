@@ -16,6 +16,8 @@ SUBJECTS: dict[str, tuple[str, str]] = {
              'SICK driver reliability under injected faults'),
     'graph': ('laser_tracker.tools.bench_graph',
               'latency and drops of the node graph over DDS at 75 Hz'),
+    'real': ('laser_tracker.tools.bench_real',
+             'the tracker on the public real recordings, scored'),
 }
 
 
