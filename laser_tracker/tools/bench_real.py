@@ -85,7 +85,7 @@ def score(name: str, bag: Path, scan_topic: str, static: str | None, config, out
     if name == 'person_following':
         ev = evaluate_recording(out, bag, scan_topic=scan_topic).result
         f = ev['following_all_annotations']
-        row.update(tracked=f['tracked'], objects=f['objects'], switches=f['id_switches'],
+        row.update(tracked=f['tracked'], annotated=f['objects'], switches=f['id_switches'],
                    misses=f['misses'],
                    mota_all=ev['clear_mot']['all']['mota'],
                    mota_walking=ev['clear_mot']['walking']['mota'],
@@ -116,8 +116,8 @@ def _kinds(path: Path) -> dict:
             kind[r['track_id']] = r.get('kind', 'object')
             if r.get('moving') == '0':
                 standing.add(r['track_id'])
-    return {'persons': sum(1 for k in kind.values() if k == 'person'),
-            'objects': sum(1 for k in kind.values() if k != 'person'),
+    return {'person_tracks': sum(1 for k in kind.values() if k == 'person'),
+            'object_tracks': sum(1 for k in kind.values() if k != 'person'),
             'ever_standing': len(standing)}
 
 
