@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -164,11 +165,19 @@ def load_model(path: str | Path = '') -> LegClassifier:
         raise DetectorModelError(path, 'no such model file' if not path.exists()
                                  else 'not a file')
     try:
+        with open(path, 'rb') as f:
+            magic = f.read(4)
+    except OSError as exc:
+        raise DetectorModelError(path, f'cannot read: {exc.strerror or exc}') from None
+    if magic != b'PK\x03\x04':
+        raise DetectorModelError(path, 'not a model file (.npz, a zip archive): '
+                                 + ('empty' if not magic else 'other content'))
+    try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: data[name] for name in data.files}
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile,
             zipfile.LargeZipFile) as exc:
-        raise DetectorModelError(path, f'not a readable model file ({exc})') from None
+        raise DetectorModelError(path, f'damaged or truncated model file ({exc})') from None
     except Exception as exc:  # noqa: BLE001 - zlib.error and others from a damaged archive
         raise DetectorModelError(path, f'damaged model file ({type(exc).__name__}: {exc})') \
             from None
@@ -266,6 +275,8 @@ class PersonDetectorConfig:
                                      '0.4 m).', min=0.1, max=10.0)
     max_range: float = param(8.0, 'Clusters farther than this (m) are not classified.',
                              min=0.1, max=100.0)
+    max_legs: int = param(32, 'At most this many leg candidates per scan (the most probable) '
+                          'are paired: bounds the work in a crowd.', min=2, max=1000)
 
 
 @dataclass
@@ -340,63 +351,68 @@ class PersonDetector:
         clusters, prob = self.classify(scan)
         xy = clusters.xy
         is_leg = prob >= self.threshold
-        persons, conf, legs = _pair_legs(xy, prob, self.threshold, self.partner_threshold,
-                                         c.pair_distance)
-        if c.single_legs:
-            persons, conf, legs = _add_single_legs(
-                xy, prob, persons, conf, legs, self.single_leg_threshold, c.single_leg_weight,
-                c.single_leg_offset, c.pair_distance)
+        persons, conf, legs = _people(xy, prob, self.threshold, self.partner_threshold,
+                                      self.single_leg_threshold, c.pair_distance,
+                                      c.single_legs, c.single_leg_weight, c.single_leg_offset,
+                                      c.max_legs)
         return PersonDetections(stamp=float(scan.stamp), frame_id=scan.frame_id, xy=persons,
                                 confidence=conf, legs=legs, leg_xy=xy, leg_probability=prob,
                                 is_leg=is_leg, occluded=clusters.occluded, clusters=clusters)
 
 
-def _pair_legs(xy, prob, threshold, partner_threshold, pair_distance):
-    """Greedy pairs (best mean probability first) of a leg and a partner within reach."""
-    cand = np.flatnonzero(prob >= partner_threshold)
-    if cand.size < 2:
+def _people(xy, prob, leg_threshold, partner_threshold, single_threshold, pair_distance,
+            single_legs, weight, offset, max_legs):
+    """Pairs of legs, then lone legs, as people (see the module docstring).
+
+    Few clusters reach the partner threshold (a handful per scan, at most ``max_legs``, the
+    most probable), so the pairing runs on Python lists: cheaper than numpy at that size.
+    """
+    lowest = min(partner_threshold, single_threshold if single_legs else 1.0)
+    cand = np.flatnonzero(prob >= lowest)
+    if cand.size == 0:
         return _NO_PERSONS
-    p = prob[cand]
-    diff = xy[cand, None, :] - xy[None, cand, :]
-    close = np.einsum('ijk,ijk->ij', diff, diff) <= pair_distance * pair_distance
-    i, j = np.nonzero(np.triu(close, 1))
-    score = 0.5 * (p[i] + p[j])
-    ok = np.maximum(p[i], p[j]) >= threshold
-    if not ok.any():
-        return _NO_PERSONS
-    i, j, score = i[ok], j[ok], score[ok]
-    order = np.argsort(-score, kind='stable')
+    if cand.size > max_legs:
+        cand = cand[np.argsort(-prob[cand], kind='stable')[:max_legs]]
+    pts = xy[cand].tolist()
+    ps = prob[cand].tolist()
+    reach = pair_distance * pair_distance
+    options = []
+    for a in range(len(ps)):
+        pa = ps[a]
+        if pa < partner_threshold:
+            continue
+        xa, ya = pts[a]
+        for b in range(a + 1, len(ps)):
+            pb = ps[b]
+            if pb < partner_threshold or (pa < leg_threshold and pb < leg_threshold):
+                continue
+            dx, dy = xa - pts[b][0], ya - pts[b][1]
+            if dx * dx + dy * dy <= reach:
+                options.append((-(pa + pb), a, b))
+    options.sort()
     used = set()
-    pairs = []
-    for a, b in zip(i[order].tolist(), j[order].tolist()):
+    rows = []                                   # x, y, confidence, leg, other leg
+    for _, a, b in options:
         if a not in used and b not in used:
             used.update((a, b))
-            pairs.append((a, b))
-    legs = cand[np.array(pairs, dtype=np.intp)]
-    persons = 0.5 * (xy[legs[:, 0]] + xy[legs[:, 1]])
-    return persons, 0.5 * (prob[legs[:, 0]] + prob[legs[:, 1]]), legs
-
-
-def _add_single_legs(xy, prob, persons, conf, legs, threshold, weight, offset, pair_distance):
-    """Lone legs (not in a pair) with ``prob >= threshold``, unless a pair's person is within
-    ``pair_distance``; the person is ``offset`` behind the leg, away from the scanner."""
-    alone = prob >= threshold
-    alone[legs.ravel()] = False
-    alone = np.flatnonzero(alone)
-    if alone.size == 0:
-        return persons, conf, legs
-    leg = xy[alone]
-    rng = np.sqrt(np.einsum('ij,ij->i', leg, leg))
-    pos = leg * (1.0 + offset / np.maximum(rng, 1e-6))[:, None]
-    if persons.shape[0]:
-        diff = pos[:, None, :] - persons[None, :, :]
-        free = (np.einsum('ijk,ijk->ij', diff, diff) > pair_distance * pair_distance).all(1)
-        alone, pos = alone[free], pos[free]
-        if alone.size == 0:
-            return persons, conf, legs
-    new_legs = np.column_stack((alone, np.full(alone.size, -1, dtype=np.intp)))
-    return (np.concatenate((persons, pos)), np.concatenate((conf, weight * prob[alone])),
-            np.concatenate((legs, new_legs)))
+            rows.append((0.5 * (pts[a][0] + pts[b][0]), 0.5 * (pts[a][1] + pts[b][1]),
+                         0.5 * (ps[a] + ps[b]), a, b))
+    if single_legs:
+        paired = len(rows)
+        for a in range(len(ps)):
+            if a in used or ps[a] < single_threshold:
+                continue
+            x, y = pts[a]
+            scale = 1.0 + offset / max(math.hypot(x, y), 1e-6)
+            x, y = x * scale, y * scale
+            if all((x - q[0]) ** 2 + (y - q[1]) ** 2 > reach for q in rows[:paired]):
+                rows.append((x, y, weight * ps[a], a, -1))
+    if not rows:
+        return _NO_PERSONS
+    table = np.array(rows)
+    legs = table[:, 3:5].astype(np.intp)
+    legs = np.where(legs >= 0, cand[np.maximum(legs, 0)], -1)
+    return table[:, :2].copy(), table[:, 2].copy(), legs
 
 
 _NO_PERSONS = (np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2), dtype=np.intp))

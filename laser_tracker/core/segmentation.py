@@ -21,17 +21,21 @@ order, ``c`` their centroid, ``r = |c|``, ``da`` the angle between beams):
 * ``boundary_ratio``: length of the polyline through the points over ``width`` (1 = straight).
 * ``boundary_cv``: regularity of the boundary: standard deviation over mean of the distances
   between consecutive points.
-* ``bulge``: mean curvature as the sagitta: mean signed distance of the points from the
-  chord ``p_0 p_{n-1}`` over ``width``, positive when the cluster bulges towards the scanner
-  (the front of a leg: about 0.1 to 0.2; a flat surface 0; a concave corner negative).
+* ``bulge``: mean curvature as the sagitta: mean signed distance of the boundary from the
+  chord ``p_0 p_{n-1}`` (trapezoidal: the sum over the points over ``n - 1``; the ends lie on
+  the chord) over ``width``, positive when the cluster bulges towards the scanner (the front
+  of a leg: about 0.2; a flat surface 0; a concave corner negative).
 * ``distance``: range of the centroid ``r`` (m).
 * ``occluded_ends``: how many of the two ends (0, 1, 2) are occluded: a return nearer than
   the end among the beams within 0.15 m beside it (at the end's range), so that something
   in front may hide part of the cluster.
 * ``clear_min``, ``clear_max``: at each end, the nearest return among those beams minus the
-  end's range, the smaller and the larger of the two (m, clipped to [-3, 3]; 3 when nothing
-  returns there): how freely the cluster stands out from its surroundings (a leg in the
-  open: large; clutter: small or negative; occluded: negative).
+  end's range, the smaller and the larger of the two (m, clipped to [-0.5, 0.5]; 0.5 when
+  nothing returns there): how freely the cluster stands out from its surroundings (a leg in
+  the open: 0.5; clutter: small; occluded: negative). The clip makes a background 0.5 m or
+  more behind the same as none: the leg_tracker training recordings have no return beside
+  most legs (the people walked in open space), and without the clip a classifier learns
+  that a wall far behind a leg makes it no leg.
 
 :data:`FEATURE_SET` names this definition; a model file trained on another one is refused.
 """
@@ -51,7 +55,7 @@ LEG_WIDTH = 0.12            # m, the object size that n_rel is relative to
 MAX_RADIUS = 2.0            # m, circle radius clip (collinear points)
 CLEARANCE = 0.15            # m beside each end searched for the nearest return
 MAX_WINDOW_ANGLE = np.pi / 4   # rad, the widest such search (for very near clusters)
-MAX_CLEAR = 3.0             # m
+MAX_CLEAR = 0.5             # m, clearance clip (see clear_min)
 _EPS = 1e-9
 
 
@@ -101,8 +105,12 @@ def segment(scan: Scan, jump_distance: float = 0.13, min_points: int = 3,
     """
     min_points = max(int(min_points), 3)
     ranges = scan.ranges
-    with np.errstate(invalid='ignore'):      # NaN compares False: not valid, as inf
-        valid = (ranges >= max(scan.range_min, 1e-6)) & (ranges < scan.range_max)
+    with np.errstate(all='ignore'):
+        return _segment(scan, ranges, jump_distance, min_points, max_width, max_range)
+
+
+def _segment(scan, ranges, jump_distance, min_points, max_width, max_range) -> Clusters:
+    valid = (ranges >= max(scan.range_min, 1e-6)) & (ranges < scan.range_max)  # NaN: False
     beams = np.flatnonzero(valid)
     m = beams.size
     if m < min_points:
@@ -115,16 +123,17 @@ def segment(scan: Scan, jump_distance: float = 0.13, min_points: int = 3,
     step = p[1:] - p[:-1]
     step_len = np.sqrt(np.einsum('ij,ij->i', step, step))
     cut = step_len > jump_distance
-    starts = np.flatnonzero(np.concatenate(([True], cut)))
+    start = np.empty(m, dtype=bool)
+    start[0] = True
+    start[1:] = cut
+    starts = np.flatnonzero(start)
     k = starts.size
     counts = np.empty(k, dtype=np.intp)
     counts[:-1] = starts[1:]
     counts[-1] = m
     counts -= starts
     ends = starts + counts - 1
-    with np.errstate(divide='ignore', invalid='ignore'):
-        features, centroid = _features(scan, valid, beams, r, p, step_len, cut, starts, ends,
-                                       counts)
+    features, centroid = _features(scan, valid, beams, r, p, step_len, cut, starts, ends, counts)
     keep = (counts >= min_points) & (features[:, 1] <= max_width)
     if max_range is not None:
         keep &= features[:, 8] <= max_range
@@ -193,13 +202,13 @@ def _features(scan, valid, beams, r, p, step_len, cut, starts, ends, counts):
     np.divide(length, safe_width, out=out[:, 5])
     np.divide(np.sqrt(np.maximum(length_sq / (n - 1.0) - mean_step * mean_step, 0.0)),
               np.maximum(mean_step, _EPS), out=out[:, 6])
-    # Bulge: distance of the centroid from the chord (cross(chord, c - first) / width),
-    # positive on the scanner's side of the chord, over the width.
+    # Bulge: n / (n - 1) times the distance of the centroid from the chord (cross(chord,
+    # c - first) / width), positive on the scanner's side of the chord, over the width.
     e = centroid - first
     side = chord[:, 0] * e[:, 1] - chord[:, 1] * e[:, 0]
     towards = chord[:, 1] * first[:, 0] - chord[:, 0] * first[:, 1]   # scanner's side
     np.copysign(side, side * towards, out=side)
-    np.divide(side, safe_width * safe_width, out=out[:, 7])
+    np.divide(side * (n / (n - 1.0)), safe_width * safe_width, out=out[:, 7])
     _context(scan, valid, beams, r, starts, ends, out[:, 9:])
     return out, centroid
 
@@ -214,8 +223,9 @@ def _context(scan, valid, beams, r, starts, ends, out) -> None:
     k = starts.size
     n = scan.n_beams
     da = abs(float(scan.angle_increment))
-    b = beams[np.concatenate((starts, ends))]
-    r_ends = r[np.concatenate((starts, ends))]
+    both = np.concatenate((starts, ends))
+    b = beams[both]
+    r_ends = r[both]
     span = np.minimum(np.ceil(CLEARANCE / (r_ends * da)), np.ceil(MAX_WINDOW_ANGLE / da))
     span = span.astype(np.intp)
     lo = b - span
@@ -224,7 +234,11 @@ def _context(scan, valid, beams, r, starts, ends, out) -> None:
     hi[:k] = b[:k] - 1                         # before the first end
     np.maximum(lo, 0, out=lo)
     np.minimum(hi, n - 1, out=hi)
-    nearest = window_min(np.where(valid, scan.ranges, np.inf), lo, hi)
+    free = np.empty(n + 1)                     # ranges, inf where no return
+    free[:n] = np.inf
+    np.copyto(free[:n], scan.ranges, where=valid)
+    free[n] = np.inf
+    nearest = _window_min(free, lo, hi)
     nearest -= r_ends
     np.clip(nearest, -MAX_CLEAR, MAX_CLEAR, out=nearest)   # inf (nothing there) -> MAX_CLEAR
     c0, c1 = nearest[:k], nearest[k:]
@@ -233,18 +247,26 @@ def _context(scan, valid, beams, r, starts, ends, out) -> None:
     np.maximum(c0, c1, out=out[:, 2])
     out[:, 3] = c0
     out[:, 4] = c1
-def window_min(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """``min(values[lo[i]:hi[i] + 1])`` for each i (0 <= lo, hi < values.size), inf where the
-    window is empty (hi < lo). One ``np.minimum.reduceat`` over the window bounds."""
+
+
+def window_min(values: np.ndarray, lo, hi) -> np.ndarray:
+    """``min(values[lo[i]:hi[i] + 1])`` for each i (``0 <= lo <= values.size``,
+    ``-1 <= hi < values.size``), inf where the window is empty (hi < lo)."""
     lo = np.asarray(lo, dtype=np.intp)
     hi = np.asarray(hi, dtype=np.intp)
-    if lo.size == 0:
-        return np.zeros(0)
     padded = np.empty(values.size + 1)
     padded[:-1] = values
-    padded[-1] = np.inf                        # hi + 1 may be values.size
+    padded[-1] = np.inf
+    return _window_min(padded, lo, hi)
+
+
+def _window_min(padded: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """:func:`window_min` on values whose last element is an inf sentinel: one
+    ``np.minimum.reduceat`` over the interleaved window bounds."""
+    if lo.size == 0:
+        return np.zeros(0)
     bounds = np.empty(2 * lo.size, dtype=np.intp)
-    bounds[0::2] = np.minimum(lo, values.size)
+    bounds[0::2] = lo
     bounds[1::2] = hi + 1
     out = np.minimum.reduceat(padded, bounds)[0::2]
     out[hi < lo] = np.inf

@@ -6,7 +6,9 @@ inference, pairing), median and 95th percentile, single-threaded, on real scans:
 (``demo_stationary_simple_environment``), 768 beams (leg_tracker training scans) and 1,081
 beams (those 768-beam scans resampled to 0.25 degree, the geometry of a 270-degree Hokuyo
 UTM). Scans come from the public data folder (``laser_tracker.tools.data.real_data()``);
-recordings that are absent are reported and skipped.
+recordings that are absent are skipped. ``--with-pipeline`` also times the motion pipeline
+(as ``laser-tracker bench pipeline``) on a bundled 361-beam recording and the detector on the
+same scans, and prints the scans per second of both together.
 
 Accuracy (the recordings below are never used for training):
 
@@ -47,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-speed', action='store_true', help='skip the speed figures')
     parser.add_argument('--no-accuracy', action='store_true',
                         help='skip the recall / detections figures')
+    parser.add_argument('--with-pipeline', action='store_true',
+                        help='also time the motion pipeline on a bundled 361-beam recording '
+                        'and report both together')
     parser.add_argument('--pair-distance', type=float,
                         help='override person_detector.pair_distance (m)')
     parser.add_argument('--json', metavar='PATH', help='also write the figures as JSON')
@@ -125,24 +130,61 @@ def _crop(scan: Scan, fov: float) -> Scan:
 
 
 def time_detector(detector: PersonDetector, scans: list[Scan], repeat: int = 3) -> dict:
-    """Per-scan wall time of ``detect`` (fastest of ``repeat`` passes per scan)."""
+    """Per-scan wall time of ``detect`` and of its stages, segmentation with features and
+    tree inference (fastest of ``repeat`` passes per scan; garbage collection paused)."""
+    from laser_tracker.core.segmentation import segment
+
+    c = detector.config
+    stages = {
+        'detect': detector.detect,
+        'segment': lambda s: segment(s, c.jump_distance, c.min_points, c.max_cluster_width,
+                                     c.max_range),
+    }
+    features = [stages['segment'](s).features for s in scans]
     for s in scans[:50]:
         detector.detect(s)
-    best = np.full(len(scans), np.inf)
+    best = {name: np.full(len(scans), np.inf) for name in (*stages, 'trees')}
     gc.collect()
     gc.disable()
     try:
         for _ in range(repeat):
             for i, s in enumerate(scans):
+                for name, f in stages.items():
+                    t0 = time.perf_counter()
+                    f(s)
+                    best[name][i] = min(best[name][i], time.perf_counter() - t0)
                 t0 = time.perf_counter()
-                detector.detect(s)
-                best[i] = min(best[i], time.perf_counter() - t0)
+                detector.classifier.predict_proba(features[i])
+                best['trees'][i] = min(best['trees'][i], time.perf_counter() - t0)
     finally:
         gc.enable()
-    ms = 1e3 * best
+    ms = 1e3 * best['detect']
     return {'scans': len(scans), 'median_ms': float(np.median(ms)),
             'p95_ms': float(np.percentile(ms, 95)), 'mean_ms': float(ms.mean()),
-            'scans_per_s': float(1e3 / ms.mean())}
+            'scans_per_s': float(1e3 / ms.mean()),
+            'segment_median_ms': float(np.median(1e3 * best['segment'])),
+            'trees_median_ms': float(np.median(1e3 * best['trees'])),
+            'clusters_per_scan': float(np.mean([f.shape[0] for f in features]))}
+
+
+def pipeline_share(detector: PersonDetector, n_scans: int) -> dict | None:
+    """The motion pipeline (``laser-tracker bench pipeline``) and the detector timed on the
+    same bundled 361-beam recording, one after the other: the detector's share and the
+    scans per second of both together."""
+    from laser_tracker.core.pipeline import PipelineConfig
+    from laser_tracker.tools.bench_pipeline import DEFAULT_BAGS, load_bag, timed_run
+
+    try:
+        events = load_bag(DEFAULT_BAGS[0])
+    except Exception:  # noqa: BLE001 - a missing bundled recording only skips this figure
+        return None
+    pipe = timed_run(events, PipelineConfig(), n_scans)
+    pipe_ms = 1e3 * pipe['wall'] / pipe['scans']
+    scans = [e[1] for e in events.events if e[0] == 'scan']
+    det = time_detector(detector, scans, repeat=1)
+    return {'recording': events.name, 'beams': scans[0].n_beams, 'pipeline_ms': pipe_ms,
+            'detector_ms': det['mean_ms'],
+            'together_scans_per_s': 1e3 / (pipe_ms + det['mean_ms'])}
 
 
 # ---------------------------------------------------------------------------- accuracy
@@ -223,14 +265,26 @@ def run(args: argparse.Namespace) -> int:
                     'config': config.__dict__}
     if not args.no_speed:
         print('\nspeed per scan (segmentation + features + trees + pairing), one core, '
-              'fastest of 3 passes per scan')
-        print(f'{"scans":44s} {"n":>5s} {"median ms":>10s} {"p95 ms":>8s} {"scans/s":>8s}')
+              'fastest of 3 passes per scan; stages: median ms')
+        print(f'{"scans":42s} {"n":>5s} {"median ms":>9s} {"p95 ms":>7s} {"scans/s":>7s} '
+              f'{"segment":>7s} {"trees":>6s} {"clusters":>8s}')
         report['speed'] = {}
         for name, scans in speed_sets(args.scans).items():
             r = time_detector(detector, scans)
             report['speed'][name] = r
-            print(f'{name:44s} {r["scans"]:5d} {r["median_ms"]:10.3f} {r["p95_ms"]:8.3f} '
-                  f'{r["scans_per_s"]:8.0f}')
+            print(f'{name:42s} {r["scans"]:5d} {r["median_ms"]:9.3f} {r["p95_ms"]:7.3f} '
+                  f'{r["scans_per_s"]:7.0f} {r["segment_median_ms"]:7.3f} '
+                  f'{r["trees_median_ms"]:6.3f} {r["clusters_per_scan"]:8.1f}')
+        if args.with_pipeline:
+            r = pipeline_share(detector, args.scans)
+            report['with_pipeline'] = r
+            if r is None:
+                print('\nno bundled recording for the pipeline comparison')
+            else:
+                print(f'\nmotion pipeline {r["pipeline_ms"]:.3f} ms + person detector '
+                      f'{r["detector_ms"]:.3f} ms per scan on {r["recording"]} '
+                      f'({r["beams"]} beams): {r["together_scans_per_s"]:.0f} scans/s '
+                      'together')
     if not args.no_accuracy:
         frames = following_frames()
         if frames:
