@@ -212,10 +212,13 @@ def test_wide_objects_and_thresholds():
     assert default.threshold == 0.7 and default.partner_threshold == 0.35
 
 
-def test_disabled_detector_reports_nothing():
+def test_disabled_detector_reports_nothing_and_needs_no_model(tmp_path):
+    legs = scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)])
     det = PersonDetector(PersonDetectorConfig(enabled=False), width_classifier())
-    out = det.detect(scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)]))
+    out = det.detect(legs)
     assert out.count == 0 and out.leg_xy.shape == (0, 2)
+    off = PersonDetector(PersonDetectorConfig(enabled=False, model=str(tmp_path / 'no.npz')))
+    assert off.detect(legs).count == 0
 
 
 @pytest.mark.parametrize('ranges', [np.full(361, np.nan), np.full(361, np.inf),

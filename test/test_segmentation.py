@@ -198,3 +198,15 @@ def test_window_min_matches_brute_force():
     hi = np.clip(lo + rng.integers(-3, 80, 500), -1, 299)
     expected = [values[a:b + 1].min() if b >= a else np.inf for a, b in zip(lo, hi)]
     np.testing.assert_array_equal(window_min(values, lo, hi), expected)
+
+
+def test_scanning_direction_does_not_matter():
+    s = SCENES[0]
+    reverse = Scan(stamp=0.0, ranges=s.ranges[::-1],
+                   angle_min=s.angle_min + (s.n_beams - 1) * s.angle_increment,
+                   angle_increment=-s.angle_increment, range_min=s.range_min,
+                   range_max=s.range_max)
+    a, b = segment(s), segment(reverse)
+    assert a.count == b.count > 0
+    np.testing.assert_allclose(a.features[np.lexsort(a.xy.T)], b.features[np.lexsort(b.xy.T)],
+                               atol=1e-9)

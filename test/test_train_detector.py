@@ -110,11 +110,15 @@ def test_box_labels_instead_of_a_labels_topic(tmp_path, capsys):
     pytest.importorskip('sklearn')
     pos, neg = _write_bags(tmp_path, n=20)
     model = tmp_path / 'model.npz'
-    # the legs lie within 1 to 3.5 m, |y| < 3; the box and walls are outside
+    # the legs lie within x 0.5 to 3.1 m, |y| < 3; the square (x >= 3.25) and walls do not
     status = _run('train-detector', '--positive', pos, '--negative', neg, '--folds', '0',
-                  '--box', '0.5', '3.3', '-2.9', '3.3', '--trees', '10', '--output', model)
+                  '--box', '0.5', '3.15', '-2.9', '3.3', '--trees', '10', '--output', model,
+                  '--augment-noise', '0.01', '--augment-resolution', '1.0')
     assert status == 0, capsys.readouterr()
-    assert load_model(model).recommended_threshold == 0.5
+    clf = load_model(model)
+    assert clf.recommended_threshold == 0.5
+    assert clf.meta['augmentation'] == {'noise_m': [0.01], 'resolution_deg': [1.0]}
+    assert clf.meta['counts']['legs'] == 40          # two legs in each of the 20 scans
 
 
 def test_unlabelled_positive_recording_is_a_clear_error(tmp_path, capsys):

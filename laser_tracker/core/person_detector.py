@@ -286,7 +286,9 @@ class PersonDetections:
     Per person: ``xy`` (p, 2) metres, ``confidence`` (p,) in [0, 1], ``legs`` (p, 2) indices
     into the leg arrays (second = -1 for a lone leg). Per classified cluster: ``leg_xy``
     (k, 2) centroid, ``leg_probability`` (k,), ``is_leg`` (k,) above the threshold,
-    ``occluded`` (k, 2) a nearer return just beyond its first / last end.
+    ``occluded`` (k, 2) a nearer return beside its first / last end; ``clusters`` all of the
+    classified clusters' arrays and features (:class:`~laser_tracker.core.segmentation.
+    Clusters`).
     """
 
     stamp: float
@@ -318,16 +320,18 @@ class PersonDetections:
 class PersonDetector:
     """``PersonDetector(config).detect(scan) -> PersonDetections``.
 
-    The model is loaded when the detector is made (DetectorModelError if it cannot be);
-    ``classifier`` may be given instead (tests, training).
+    The model is loaded when the detector is made (DetectorModelError if it cannot be; not
+    at all when ``enabled`` is false); ``classifier`` may be given instead.
     """
 
     def __init__(self, config: PersonDetectorConfig | None = None,
                  classifier: LegClassifier | None = None):
         self.config = config or PersonDetectorConfig()
-        self.classifier = classifier if classifier is not None else \
-            load_model(self.config.model)
         c = self.config
+        if classifier is None:
+            classifier = load_model(c.model) if c.enabled else \
+                LegClassifier(np.zeros((1, 1)), np.full((1, 1), np.inf), np.zeros((1, 2)), 0.0)
+        self.classifier = classifier
         self.threshold = c.threshold or self.classifier.recommended_threshold
         self.partner_threshold = c.partner_threshold or 0.5 * self.threshold
         self.single_leg_threshold = c.single_leg_threshold or self.threshold
