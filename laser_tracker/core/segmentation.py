@@ -48,6 +48,7 @@ import numpy as np
 from laser_tracker.core.scan import Scan, beam_table
 
 FEATURE_SET = 'leg-shape-1'
+# Column order of Clusters.features (``_features`` writes the columns by index).
 FEATURE_NAMES = ('n_rel', 'width', 'line_rms', 'circle_radius', 'circle_rms',
                  'boundary_ratio', 'boundary_cv', 'bulge', 'distance', 'occluded_ends',
                  'clear_min', 'clear_max')
@@ -57,6 +58,8 @@ CLEARANCE = 0.15            # m beside each end searched for the nearest return
 MAX_WINDOW_ANGLE = np.pi / 4   # rad, the widest such search (for very near clusters)
 MAX_CLEAR = 0.5             # m, clearance clip (see clear_min)
 _EPS = 1e-9
+_WIDTH = FEATURE_NAMES.index('width')
+_DISTANCE = FEATURE_NAMES.index('distance')
 
 
 @dataclass
@@ -74,7 +77,7 @@ class Clusters:
     n_points: np.ndarray
     features: np.ndarray
     occluded: np.ndarray
-    total: int = 0              # clusters found before the size filters
+    total: int = 0              # clusters found before the filters (0: too few points)
 
     @property
     def count(self) -> int:
@@ -99,9 +102,9 @@ def segment(scan: Scan, jump_distance: float = 0.13, min_points: int = 3,
     """Clusters of ``scan`` with at least ``min_points`` (>= 3) points, at most ``max_width``
     metres between their ends and their centroid within ``max_range``, with their features.
 
-    The cost per scan is a fixed number of numpy calls (about a hundred): every quantity is
-    computed for all clusters at once, per-cluster sums with one ``np.add.reduceat``, and the
-    clusters that fail the size filters are dropped at the end.
+    The cost per scan is a fixed number of numpy calls whatever the number of clusters: every
+    quantity is computed for all clusters at once (per-cluster sums with one
+    ``np.add.reduceat``) and the clusters that fail the filters are dropped at the end.
     """
     min_points = max(int(min_points), 3)
     ranges = scan.ranges
@@ -114,7 +117,7 @@ def _segment(scan, ranges, jump_distance, min_points, max_width, max_range) -> C
     beams = np.flatnonzero(valid)
     m = beams.size
     if m < min_points:
-        return Clusters.empty(total=int(m > 0))
+        return Clusters.empty()
     _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams)
     r = ranges[beams]
     p = np.empty((m, 2))
@@ -134,9 +137,9 @@ def _segment(scan, ranges, jump_distance, min_points, max_width, max_range) -> C
     counts -= starts
     ends = starts + counts - 1
     features, centroid = _features(scan, valid, beams, r, p, step_len, cut, starts, ends, counts)
-    keep = (counts >= min_points) & (features[:, 1] <= max_width)
+    keep = (counts >= min_points) & (features[:, _WIDTH] <= max_width)
     if max_range is not None:
-        keep &= features[:, 8] <= max_range
+        keep &= features[:, _DISTANCE] <= max_range
     kept = np.flatnonzero(keep)
     if kept.size == 0:
         return Clusters.empty(total=k)
