@@ -116,6 +116,11 @@ def speed_sets(limit: int) -> dict[str, list[Scan]]:
         sets['768 beams (leg_tracker training)'] = hokuyo
         sets['1081 beams (768-beam scans at 0.25 deg)'] = [resample(s, np.radians(0.25))
                                                           for s in hokuyo]
+    if not sets:            # no public data: the synthetic room of `bench pipeline`
+        from laser_tracker.tools.bench_pipeline import synthetic
+
+        sets['361 beams (synthetic room, no public data found)'] = [
+            e[1] for e in synthetic(min(limit, 200)).events if e[0] == 'scan']
     return sets
 
 
