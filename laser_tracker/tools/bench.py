@@ -12,6 +12,8 @@ SUBJECTS: dict[str, tuple[str, str]] = {
                   'ICP accuracy and time per scan on CARMEN logs, beside kiss-icp'),
     'pipeline': ('laser_tracker.tools.bench_pipeline',
                  'scans per second, ms per stage and peak memory of the whole pipeline'),
+    'detector': ('laser_tracker.tools.bench_detector',
+                 'person detector (legs): ms per scan, recall on person_following'),
     'sick': ('laser_tracker.tools.bench_sick',
              'SICK driver reliability under injected faults'),
     'graph': ('laser_tracker.tools.bench_graph',

@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'evaluate': ('laser_tracker.tools.evaluate', 'score a replay against ground truth'),
     'demo': ('laser_tracker.tools.demo', 'replay and evaluate a bundled recording'),
     'bench': ('laser_tracker.tools.bench', 'benchmarks that print figures'),
+    'train-detector': ('laser_tracker.tools.train_detector', 'train the person detector'),
     'sick-sim': ('laser_tracker.tools.sick_sim', 'a SICK LMS2xx device on a pseudo-terminal'),
     'config': ('laser_tracker.tools.config_file', 'write or check config/laser_tracker.yaml'),
 }

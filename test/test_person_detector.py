@@ -1,0 +1,268 @@
+"""The person detector: numpy tree inference, the model file, legs paired into people."""
+import json
+import zipfile
+
+import numpy as np
+import pytest
+from leg_scenes import box, scene
+
+from laser_tracker.config import ConfigError, from_dict
+from laser_tracker.core.person_detector import (MODEL_VERSION, PACKAGED_MODEL,
+                                                DetectorModelError, LegClassifier,
+                                                PersonDetector, PersonDetectorConfig,
+                                                load_model, save_model)
+from laser_tracker.core.scan import Scan
+from laser_tracker.core.segmentation import FEATURE_NAMES, FEATURE_SET
+from laser_tracker.errors import LaserTrackerError
+from laser_tracker.tools.data import real_recording
+
+WIDTH = FEATURE_NAMES.index('width')
+
+
+def width_classifier(threshold=0.5) -> LegClassifier:
+    """One tree of depth 1: a cluster at most 0.2 m wide is a leg (p = 0.95), else not."""
+    return LegClassifier(feature=np.array([[WIDTH]]), threshold=np.array([[0.2]]),
+                         value=np.array([[3.0, -3.0]]), bias=-0.0555,
+                         meta={'threshold': threshold})
+
+
+P_LEG = 1 / (1 + np.exp(-(3.0 - 0.0555)))
+
+
+# ------------------------------------------------------------------ inference = sklearn
+
+def _fitted(depth, seed=0):
+    sklearn = pytest.importorskip('sklearn.ensemble')
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(600, len(FEATURE_NAMES)))
+    y = ((X[:, 0] + X[:, 3] ** 2 - X[:, 7] > 0.5) ^ (rng.random(600) < 0.1)).astype(int)
+    model = sklearn.GradientBoostingClassifier(n_estimators=25, max_depth=depth,
+                                               learning_rate=0.3, subsample=0.8,
+                                               random_state=seed)
+    model.fit(X, y, sample_weight=np.where(y == 1, 2.0, 1.0))
+    return model, X
+
+
+@pytest.mark.parametrize('depth', [1, 2, 3, 4])
+def test_numpy_inference_equals_sklearn(depth):
+    from laser_tracker.tools.train_detector import export
+
+    model, X = _fitted(depth)
+    clf = export(model, {'threshold': 0.5})
+    assert clf.depth == max(e[0].tree_.max_depth for e in model.estimators_)
+    # rows exactly at split thresholds (as float32) test the <= / > convention
+    used = clf.feature[clf.threshold < np.inf]
+    thr = clf.threshold[clf.threshold < np.inf]
+    edge = X[:used.size].copy()
+    edge[np.arange(used.size), used] = thr.astype(np.float32)
+    for rows in (X, edge, X[:1], np.zeros((0, len(FEATURE_NAMES)))):
+        np.testing.assert_allclose(clf.predict_proba(rows),
+                                   model.predict_proba(rows)[:, 1] if len(rows) else [],
+                                   rtol=0, atol=1e-12)
+
+
+def test_table_lookup_equals_walking_the_trees():
+    clf = load_model()
+    X = np.random.default_rng(1).normal(size=(300, len(FEATURE_NAMES))) * 3
+    table = clf.decision_function(X)
+    clf._table = None
+    np.testing.assert_array_equal(clf.decision_function(X), table)
+
+
+# ------------------------------------------------------------------------ model files
+
+def test_packaged_model_is_small_and_current():
+    assert PACKAGED_MODEL.is_file()
+    assert PACKAGED_MODEL.stat().st_size < 1024 * 1024
+    clf = load_model('')
+    assert clf.meta['feature_set'] == FEATURE_SET
+    assert clf.meta['feature_names'] == list(FEATURE_NAMES)
+    assert 0.0 < clf.recommended_threshold < 1.0
+    p = clf.predict_proba(np.random.default_rng(0).normal(size=(20, len(FEATURE_NAMES))))
+    assert ((p >= 0) & (p <= 1)).all()
+
+
+def test_setup_cfg_ships_the_model():
+    import configparser
+    from pathlib import Path
+
+    cfg = configparser.ConfigParser()
+    cfg.read(Path(__file__).resolve().parents[1] / 'setup.cfg')
+    assert 'models/*.npz' in cfg['options.package_data']['laser_tracker']
+
+
+def test_save_and_load_round_trip(tmp_path):
+    clf = load_model()
+    path = tmp_path / 'copy.npz'
+    save_model(path, clf)
+    again = load_model(path)
+    X = np.random.default_rng(2).normal(size=(50, len(FEATURE_NAMES)))
+    np.testing.assert_array_equal(again.predict_proba(X), clf.predict_proba(X))
+    assert again.recommended_threshold == clf.recommended_threshold
+
+
+def _rewrite(src, dest, **changes):
+    with np.load(src) as data:
+        arrays = {k: data[k] for k in data.files}
+    header = json.loads(str(arrays['header']))
+    header.update(changes.pop('header', {}))
+    arrays['header'] = np.array(json.dumps(header))
+    arrays.update(changes)
+    np.savez(dest, **arrays)
+
+
+def _bad_files(tmp_path):
+    good = PACKAGED_MODEL.read_bytes()
+    files = {}
+    files['missing'] = tmp_path / 'missing.npz'
+    files['truncated'] = tmp_path / 'truncated.npz'
+    files['truncated'].write_bytes(good[:len(good) // 2])
+    files['garbage'] = tmp_path / 'garbage.npz'
+    files['garbage'].write_bytes(np.random.default_rng(0).bytes(4000))
+    files['text'] = tmp_path / 'model.yaml'
+    files['text'].write_text('trees: 50\n')
+    files['empty'] = tmp_path / 'empty.npz'
+    files['empty'].write_bytes(b'')
+    files['folder'] = tmp_path
+    files['other_zip'] = tmp_path / 'other.npz'
+    with zipfile.ZipFile(files['other_zip'], 'w') as z:
+        z.writestr('readme.txt', 'not a model')
+    for name, change in {
+            'old_version': {'header': {'version': MODEL_VERSION + 1}},
+            'other_format': {'header': {'format': 'something.else'}},
+            'other_features': {'header': {'feature_set': 'leg-shape-0',
+                                          'feature_names': ['n_points', 'width']}},
+            'bad_index': {'feature': np.full((3, 7), 99, dtype=np.int16),
+                          'threshold': np.zeros((3, 7)), 'value': np.zeros((3, 8))},
+            'not_a_tree': {'value': np.zeros((50, 5))},
+            'nan_values': {'value': np.full((50, 8), np.nan)}}.items():
+        files[name] = tmp_path / f'{name}.npz'
+        _rewrite(PACKAGED_MODEL, files[name], **change)
+    return files
+
+
+def test_unusable_model_files_raise_a_clear_error(tmp_path):
+    for name, path in _bad_files(tmp_path).items():
+        with pytest.raises(DetectorModelError) as info:
+            load_model(path)
+        message = str(info.value)
+        assert str(path) in message, name
+        assert '\n' not in message, name
+        assert isinstance(info.value, LaserTrackerError)
+    with pytest.raises(DetectorModelError, match='retrain'):
+        load_model(tmp_path / 'other_features.npz')
+    with pytest.raises(DetectorModelError, match='version'):
+        load_model(tmp_path / 'old_version.npz')
+
+
+def test_detector_with_a_bad_model_file_fails_at_construction(tmp_path):
+    config = PersonDetectorConfig(model=str(tmp_path / 'none.npz'))
+    with pytest.raises(DetectorModelError, match='none.npz'):
+        PersonDetector(config)
+
+
+# ------------------------------------------------------------------- people from legs
+
+def test_two_legs_make_one_person_at_their_midpoint():
+    det = PersonDetector(PersonDetectorConfig(), width_classifier())
+    out = det.detect(scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)]))
+    assert out.count == 1
+    legs = out.leg_xy[out.legs[0]]
+    np.testing.assert_allclose(out.xy[0], legs.mean(axis=0))
+    assert abs(out.xy[0, 1]) < 0.01 and 1.9 < out.xy[0, 0] < 2.0
+    np.testing.assert_allclose(out.confidence, [P_LEG])
+    assert out.is_leg.sum() == 2
+
+
+def test_lone_legs_are_people_behind_the_leg_with_lower_confidence():
+    config = PersonDetectorConfig(single_leg_weight=0.5, single_leg_offset=0.1)
+    det = PersonDetector(config, width_classifier())
+    out = det.detect(scene([(2.0, 0.6, 0.06), (2.0, -0.6, 0.06)]))     # 1.2 m apart
+    assert out.count == 2
+    assert (out.legs[:, 1] == -1).all()
+    np.testing.assert_allclose(out.confidence, 0.5 * P_LEG)
+    leg_range = np.hypot(*out.leg_xy[out.legs[:, 0]].T)
+    np.testing.assert_allclose(np.hypot(*out.xy.T), leg_range + 0.1)
+    none = PersonDetector(PersonDetectorConfig(single_legs=False), width_classifier())
+    assert none.detect(scene([(2.0, 0.6, 0.06), (2.0, -0.6, 0.06)])).count == 0
+
+
+def test_each_leg_belongs_to_one_person():
+    det = PersonDetector(PersonDetectorConfig(), width_classifier())
+    out = det.detect(scene([(2.0, 0.0, 0.06), (2.0, 0.35, 0.06), (2.0, 0.7, 0.06),
+                            (2.0, 1.05, 0.06)]))
+    assert out.count == 2
+    used = out.legs[out.legs >= 0]
+    assert len(set(used.tolist())) == used.size == 4
+
+
+def test_a_lone_leg_next_to_a_pair_adds_no_person():
+    det = PersonDetector(PersonDetectorConfig(pair_distance=0.6), width_classifier())
+    out = det.detect(scene([(2.0, 0.0, 0.06), (2.0, 0.3, 0.06), (2.0, 0.6, 0.06)]))
+    assert out.count == 1 and (out.legs[0] >= 0).all()
+
+
+def test_wide_objects_and_thresholds():
+    det = PersonDetector(PersonDetectorConfig(), width_classifier())
+    assert det.detect(scene(walls=box(2.0, 0.0, 0.4))).count == 0
+    strict = PersonDetector(PersonDetectorConfig(threshold=0.99), width_classifier())
+    assert strict.threshold == 0.99
+    assert strict.detect(scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)])).count == 0
+    default = PersonDetector(PersonDetectorConfig(), width_classifier(threshold=0.7))
+    assert default.threshold == 0.7 and default.partner_threshold == 0.35
+
+
+def test_disabled_detector_reports_nothing_and_needs_no_model(tmp_path):
+    legs = scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)])
+    det = PersonDetector(PersonDetectorConfig(enabled=False), width_classifier())
+    out = det.detect(legs)
+    assert out.count == 0 and out.leg_xy.shape == (0, 2)
+    off = PersonDetector(PersonDetectorConfig(enabled=False, model=str(tmp_path / 'no.npz')))
+    assert off.detect(legs).count == 0
+
+
+@pytest.mark.parametrize('ranges', [np.full(361, np.nan), np.full(361, np.inf),
+                                    np.full(361, -2.0), np.zeros(361), np.array([1.0])])
+def test_scans_without_points_give_no_people(ranges):
+    det = PersonDetector()
+    with np.errstate(all='raise'):
+        out = det.detect(Scan(stamp=1.0, ranges=ranges, angle_min=-1.5,
+                              angle_increment=3.0 / max(1, ranges.size - 1), range_min=0.02,
+                              range_max=5.6))
+    assert out.count == 0 and out.stamp == 1.0
+
+
+def test_dense_and_garbage_scans_run_with_the_packaged_model():
+    det = PersonDetector()
+    rng = np.random.default_rng(4)
+    for n in (181, 1081, 4000):
+        r = rng.uniform(0.0, 6.0, n)
+        r[rng.random(n) < 0.2] = np.nan
+        out = det.detect(Scan(stamp=0.0, ranges=r, angle_min=-2.3,
+                              angle_increment=4.7 / n, range_min=0.02, range_max=5.6))
+        assert np.isfinite(out.xy).all() and ((out.confidence >= 0) & (out.confidence <= 1)).all()
+        assert out.leg_probability.shape == (out.leg_xy.shape[0],)
+
+
+def test_config_is_validated():
+    with pytest.raises(ConfigError):
+        from_dict(PersonDetectorConfig, {'pair_distance': -1.0}, 'person_detector')
+    with pytest.raises(ConfigError):
+        from_dict(PersonDetectorConfig, {'threshhold': 0.5}, 'person_detector')
+    config = from_dict(PersonDetectorConfig, {'threshold': 0.6, 'model': ''}, 'person_detector')
+    assert config.threshold == 0.6
+
+
+# ------------------------------------------------------------------------ real data
+
+def test_finds_the_followed_person_in_a_recording_it_was_not_trained_on():
+    from laser_tracker.tools.bench_detector import FOLLOWING, following_frames, score_following
+
+    if not real_recording(FOLLOWING).exists():
+        pytest.skip(f'public recording {FOLLOWING} not found (see laser_tracker.tools.data)')
+    frames = following_frames()[:1500:3]
+    scores = score_following(PersonDetector(), frames)
+    assert scores['recall_0.5m'] > 0.6
+    assert scores['other_detections_per_scan'] < 0.2
+    coarse = score_following(PersonDetector(), frames, np.radians(1.0))
+    assert coarse['recall_0.5m'] > 0.6
