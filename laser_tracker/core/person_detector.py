@@ -1,0 +1,410 @@
+"""People from the shape of their legs in one scan (no motion needed).
+
+The occupancy-grid method sees what moves; a person standing still, or walking along with
+the robot, is invisible to it. This detector finds people in a single scan:
+
+1. :func:`laser_tracker.core.segmentation.segment` splits the scan into clusters by jump
+   distance and describes each cluster's shape (features independent of the beam density);
+2. a small gradient-boosted tree ensemble (:class:`LegClassifier`, trained offline by
+   ``laser-tracker train-detector`` with scikit-learn, evaluated here with numpy only) gives
+   each cluster a leg probability;
+3. legs become people (:meth:`PersonDetector.detect`): two legs at most ``pair_distance``
+   apart are one person at their midpoint, the pairs chosen greedily by their mean
+   probability, each leg used once; the second leg of a pair needs only
+   ``partner_threshold``. A leg left alone is a person too when its probability reaches
+   ``single_leg_threshold``: its other leg is then taken to be hidden (behind it, the usual
+   case when a person walks radially, or behind something nearer), the person placed
+   ``single_leg_offset`` behind the leg and its confidence scaled by ``single_leg_weight``.
+   A lone leg within ``pair_distance`` of a person already found adds nothing.
+
+Output, :class:`PersonDetections` (scanner frame, metres): per person ``xy``,
+``confidence`` in [0, 1] (a pair: the mean of its legs' probabilities) and the indices of
+its legs; per classified cluster (diagnostics) ``leg_xy``, ``leg_probability``,
+``occluded`` ends and ``is_leg``.
+
+The model file (``.npz``, :func:`load_model`) holds the trees as complete binary trees of
+one depth (``feature``, ``threshold``, ``value`` arrays) and a JSON header naming the format
+version and the feature set; a file that is missing, damaged, of another format version or
+trained on other features raises :class:`DetectorModelError` naming the file, so a node can
+log it and go on with the motion method alone.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from laser_tracker.config import param
+from laser_tracker.core.scan import Scan
+from laser_tracker.core.segmentation import FEATURE_NAMES, FEATURE_SET, Clusters, segment
+from laser_tracker.errors import InputFileError
+
+log = logging.getLogger(__name__)
+
+MODEL_FORMAT = 'laser_tracker.leg_classifier'
+MODEL_VERSION = 1
+PACKAGED_MODEL = Path(__file__).resolve().parents[1] / 'models' / 'person_detector.npz'
+MAX_DEPTH = 12
+
+
+class DetectorModelError(InputFileError):
+    """A person-detector model file that cannot be used (missing, damaged, other version or
+    feature set); the message names the file and what is wrong."""
+
+
+# ------------------------------------------------------------------------ the classifier
+
+
+class LegClassifier:
+    """Gradient-boosted trees evaluated with numpy: ``predict_proba(features) -> (k,)``.
+
+    Every tree is complete to ``depth``: node ``i`` has children ``2i+1`` (left, taken when
+    ``x[feature] <= threshold``) and ``2i+2``; the ``2**depth`` leaves follow the
+    ``2**depth - 1`` inner nodes. Features are compared as float32, as scikit-learn does, so
+    the probabilities equal its ``predict_proba`` on the same features.
+
+    Trees of depth 3 or less are evaluated without walking them: all inner-node tests of
+    all trees at once, the test outcomes of each tree packed into one byte, and that byte
+    looked up in a table of each tree's leaf values (2**7 entries per tree at depth 3).
+    """
+
+    def __init__(self, feature: np.ndarray, threshold: np.ndarray, value: np.ndarray,
+                 bias: float, meta: dict[str, Any] | None = None, path: str = ''):
+        self.feature = np.ascontiguousarray(feature, dtype=np.intp)
+        self.threshold = np.ascontiguousarray(threshold, dtype=np.float64)
+        self.value = np.ascontiguousarray(value, dtype=np.float64)
+        self.bias = float(bias)
+        self.meta = dict(meta or {})
+        self.path = path
+        trees, inner = self.feature.shape
+        self.depth = int(inner + 1).bit_length() - 1
+        self.n_trees = trees
+        self._inner = inner
+        self._feature_flat = self.feature.ravel()
+        self._threshold_flat = self.threshold.ravel()
+        self._value_flat = self.value.ravel()
+        self._tree_inner = np.arange(trees, dtype=np.intp) * inner
+        # leaf value index of global node g = t * inner + local, local in inner..2 inner:
+        # t * (inner + 1) + local - inner = g + t - inner
+        self._tree_leaf = np.arange(trees, dtype=np.intp) - inner
+        self._table = self._leaf_table() if self.depth <= 3 else None
+        self._table_offset = np.arange(trees, dtype=np.intp) * (2 ** inner)
+        # node-major copies (all trees' node 0, then all trees' node 1, ...) for the table
+        self._feature_nodes = np.ascontiguousarray(self.feature.T).ravel()
+        self._threshold_nodes = np.ascontiguousarray(self.threshold.T).ravel()
+        self._bit = (1 << np.arange(inner)).astype(np.uint8)
+
+    def _leaf_table(self) -> np.ndarray:
+        """(trees * 2**inner,) leaf value for every pattern of inner-node test outcomes
+        (bit i set: the test of node i sends right)."""
+        inner = self._inner
+        codes = np.arange(2 ** inner)
+        bits = (codes[:, None] >> np.arange(inner)) & 1          # (codes, inner)
+        node = np.zeros(codes.size, dtype=np.intp)
+        for _ in range(self.depth):
+            node = 2 * node + 1 + bits[np.arange(codes.size), node]
+        return (self.value[:, node - inner]).ravel()             # (trees, codes)
+
+    @property
+    def recommended_threshold(self) -> float:
+        return float(self.meta.get('threshold', 0.5))
+
+    def decision_function(self, features: np.ndarray) -> np.ndarray:
+        """Raw scores (log-odds) of the rows of ``features`` (k, len(FEATURE_NAMES))."""
+        x = np.asarray(features, dtype=np.float32)
+        k = x.shape[0]
+        if k == 0:
+            return np.zeros(0)
+        x = x.astype(np.float64)
+        if self._table is not None:
+            right = np.take(x, self._feature_nodes, axis=1) > self._threshold_nodes
+            code = np.einsum('knt,n->kt', right.reshape(k, self._inner, self.n_trees).view(
+                np.uint8), self._bit)                               # (k, trees) in 0..127
+            leaves = self._table[code + self._table_offset]
+            return self.bias + leaves.sum(axis=1)
+        flat = x.ravel()
+        rows = (np.arange(k, dtype=np.intp) * x.shape[1])[:, None]
+        node = np.broadcast_to(self._tree_inner, (k, self.n_trees))
+        base = self._tree_inner
+        for _ in range(self.depth):
+            right = flat[rows + self._feature_flat[node]] > self._threshold_flat[node]
+            # child of global node g in a tree starting at base: base + 2 (g - base) + 1 (+1)
+            node = 2 * node - base + 1 + right
+        leaves = self._value_flat[node + self._tree_leaf]
+        return self.bias + leaves.sum(axis=1)
+
+    def predict_proba(self, features: np.ndarray) -> np.ndarray:
+        """Leg probability of each row of ``features``."""
+        z = self.decision_function(features)
+        return 1.0 / (1.0 + np.exp(-np.clip(z, -50.0, 50.0)))
+
+
+def save_model(path: str | Path, classifier: LegClassifier) -> None:
+    """Write ``classifier`` as a model file (the header records format and feature set)."""
+    meta = dict(classifier.meta)
+    meta.update(format=MODEL_FORMAT, version=MODEL_VERSION, feature_set=FEATURE_SET,
+                feature_names=list(FEATURE_NAMES), depth=classifier.depth,
+                n_trees=classifier.n_trees, bias=classifier.bias)
+    with open(path, 'wb') as f:
+        np.savez_compressed(f, header=np.array(json.dumps(meta, sort_keys=True)),
+                            feature=classifier.feature.astype(np.int16),
+                            threshold=classifier.threshold,
+                            value=classifier.value)
+
+
+def load_model(path: str | Path = '') -> LegClassifier:
+    """The classifier in ``path`` ('' = the packaged model); DetectorModelError if unusable."""
+    path = Path(path) if str(path) else PACKAGED_MODEL
+    if not path.is_file():
+        raise DetectorModelError(path, 'no such model file' if not path.exists()
+                                 else 'not a file')
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile,
+            zipfile.LargeZipFile) as exc:
+        raise DetectorModelError(path, f'not a readable model file ({exc})') from None
+    except Exception as exc:  # noqa: BLE001 - zlib.error and others from a damaged archive
+        raise DetectorModelError(path, f'damaged model file ({type(exc).__name__}: {exc})') \
+            from None
+    missing = [k for k in ('header', 'feature', 'threshold', 'value') if k not in arrays]
+    if missing:
+        raise DetectorModelError(path, f'not a {MODEL_FORMAT} file (no {", ".join(missing)})')
+    try:
+        meta = json.loads(str(arrays['header']))
+    except ValueError as exc:
+        raise DetectorModelError(path, f'unreadable header ({exc})') from None
+    if not isinstance(meta, dict):
+        raise DetectorModelError(path, 'unreadable header (not a JSON object)')
+    if meta.get('format') != MODEL_FORMAT:
+        raise DetectorModelError(path, f'not a {MODEL_FORMAT} file '
+                                 f'(format {meta.get("format")!r})')
+    if meta.get('version') != MODEL_VERSION:
+        raise DetectorModelError(path, f'model format version {meta.get("version")!r}; this '
+                                 f'laser_tracker reads version {MODEL_VERSION}: retrain it '
+                                 '(laser-tracker train-detector)')
+    if meta.get('feature_set') != FEATURE_SET or meta.get('feature_names') != \
+            list(FEATURE_NAMES):
+        names = meta.get('feature_names')
+        count = len(names) if isinstance(names, list) else '?'
+        raise DetectorModelError(path, f'trained on feature set {meta.get("feature_set")!r} '
+                                 f'({count} features), this laser_tracker computes '
+                                 f'{FEATURE_SET!r} ({len(FEATURE_NAMES)} features): retrain '
+                                 'it (laser-tracker train-detector)')
+    feature, threshold, value = arrays['feature'], arrays['threshold'], arrays['value']
+    problem = _check_arrays(feature, threshold, value)
+    try:
+        bias = float(meta.get('bias'))
+    except (TypeError, ValueError):
+        bias = float('nan')
+    if problem is None and not np.isfinite(bias):
+        problem = f'bias is {meta.get("bias")!r}'
+    if problem:
+        raise DetectorModelError(path, f'inconsistent model: {problem}')
+    return LegClassifier(feature, threshold, value, bias, meta, str(path))
+
+
+def _check_arrays(feature, threshold, value) -> str | None:
+    if feature.ndim != 2 or threshold.shape != feature.shape or value.ndim != 2 or \
+            value.shape[0] != feature.shape[0] or feature.shape[0] == 0:
+        return (f'array shapes feature {feature.shape}, threshold {threshold.shape}, '
+                f'value {value.shape}')
+    inner = feature.shape[1]
+    depth = int(inner + 1).bit_length() - 1
+    if inner != 2 ** depth - 1 or value.shape[1] != 2 ** depth or not 1 <= depth <= MAX_DEPTH:
+        return f'{inner} inner nodes and {value.shape[1]} leaves per tree is not a complete tree'
+    if not (np.issubdtype(feature.dtype, np.integer) and np.issubdtype(threshold.dtype,
+                                                                       np.floating)
+            and np.issubdtype(value.dtype, np.floating)):
+        return f'array types {feature.dtype}, {threshold.dtype}, {value.dtype}'
+    if feature.min() < 0 or feature.max() >= len(FEATURE_NAMES):
+        return f'feature index outside 0..{len(FEATURE_NAMES) - 1}'
+    if np.isnan(threshold).any() or not np.isfinite(value).all():
+        return 'NaN or infinite values'
+    return None
+
+
+# ------------------------------------------------------------------------ people from legs
+
+
+@dataclass(frozen=True)
+class PersonDetectorConfig:
+    """People from the shape of their legs in one scan (``person_detector.*``)."""
+
+    enabled: bool = param(True, 'Detect people by the shape of their legs in each scan.')
+    model: str = param('', "Model file (laser-tracker train-detector); '' = the model shipped "
+                       'with the package (trained on the leg_tracker recordings).')
+    threshold: float = param(0.0, 'Leg probability from which a cluster is a leg; 0 = the '
+                             'threshold chosen at training (recorded in the model file).',
+                             min=0.0, max=1.0)
+    partner_threshold: float = param(0.0, 'Leg probability the second leg of a pair needs; '
+                                     '0 = half the leg threshold.', min=0.0, max=1.0)
+    single_legs: bool = param(True, 'A leg with no partner is a person (its other leg '
+                              'hidden behind it or behind something nearer).')
+    single_leg_threshold: float = param(0.0, 'Leg probability a leg alone needs to be a '
+                                        'person; 0 = the leg threshold.', min=0.0, max=1.0)
+    single_leg_weight: float = param(0.5, "A lone leg's person confidence is its "
+                                     'probability times this.', min=0.0, max=1.0)
+    single_leg_offset: float = param(0.1, "A lone leg's person lies this far behind the leg "
+                                     '(m, away from the scanner), between it and the hidden '
+                                     'leg.', min=0.0, max=1.0)
+    pair_distance: float = param(0.6, 'Two legs at most this far apart (m, between cluster '
+                                 'centres) are one person: a stride at knee height.',
+                                 min=0.05, max=2.0)
+    jump_distance: float = param(0.13, 'Consecutive scan points further apart than this (m) '
+                                 'belong to different clusters; keep the value the model was '
+                                 'trained with.', min=0.01, max=1.0)
+    min_points: int = param(3, 'Fewest points of a cluster that is classified.', min=3,
+                            max=1000)
+    max_cluster_width: float = param(1.0, 'Clusters wider than this (m, end to end) are not '
+                                     'classified (walls; two legs side by side are about '
+                                     '0.4 m).', min=0.1, max=10.0)
+    max_range: float = param(8.0, 'Clusters farther than this (m) are not classified.',
+                             min=0.1, max=100.0)
+    max_legs: int = param(32, 'At most this many leg candidates per scan (the most probable) '
+                          'are paired: bounds the work in a crowd.', min=2, max=1000)
+
+
+@dataclass
+class PersonDetections:
+    """People found in one scan (scanner frame) and the clusters behind them.
+
+    Per person: ``xy`` (p, 2) metres, ``confidence`` (p,) in [0, 1], ``legs`` (p, 2) indices
+    into the leg arrays (second = -1 for a lone leg). Per classified cluster: ``leg_xy``
+    (k, 2) centroid, ``leg_probability`` (k,), ``is_leg`` (k,) above the threshold,
+    ``occluded`` (k, 2) a nearer return just beyond its first / last end.
+    """
+
+    stamp: float
+    frame_id: str
+    xy: np.ndarray
+    confidence: np.ndarray
+    legs: np.ndarray
+    leg_xy: np.ndarray
+    leg_probability: np.ndarray
+    is_leg: np.ndarray
+    occluded: np.ndarray
+    clusters: Clusters | None = field(default=None, repr=False)
+
+    @property
+    def count(self) -> int:
+        return int(self.xy.shape[0])
+
+    def __len__(self) -> int:
+        return self.count
+
+    @classmethod
+    def empty(cls, stamp: float = 0.0, frame_id: str = 'laser') -> PersonDetections:
+        return cls(stamp=float(stamp), frame_id=frame_id, xy=np.zeros((0, 2)),
+                   confidence=np.zeros(0), legs=np.zeros((0, 2), dtype=np.intp),
+                   leg_xy=np.zeros((0, 2)), leg_probability=np.zeros(0),
+                   is_leg=np.zeros(0, dtype=bool), occluded=np.zeros((0, 2), dtype=bool))
+
+
+class PersonDetector:
+    """``PersonDetector(config).detect(scan) -> PersonDetections``.
+
+    The model is loaded when the detector is made (DetectorModelError if it cannot be);
+    ``classifier`` may be given instead (tests, training).
+    """
+
+    def __init__(self, config: PersonDetectorConfig | None = None,
+                 classifier: LegClassifier | None = None):
+        self.config = config or PersonDetectorConfig()
+        self.classifier = classifier if classifier is not None else \
+            load_model(self.config.model)
+        c = self.config
+        self.threshold = c.threshold or self.classifier.recommended_threshold
+        self.partner_threshold = c.partner_threshold or 0.5 * self.threshold
+        self.single_leg_threshold = c.single_leg_threshold or self.threshold
+        trained = self.classifier.meta.get('segmentation', {}).get('jump_distance')
+        if trained is not None and abs(float(trained) - c.jump_distance) > 1e-9:
+            log.warning('person detector: jump_distance %.3f differs from the %.3f the model '
+                        '%s was trained with', c.jump_distance, float(trained),
+                        self.classifier.path)
+
+    def classify(self, scan: Scan) -> tuple[Clusters, np.ndarray]:
+        """The scan's clusters and their leg probabilities."""
+        c = self.config
+        clusters = segment(scan, c.jump_distance, c.min_points, c.max_cluster_width,
+                           c.max_range)
+        return clusters, self.classifier.predict_proba(clusters.features)
+
+    def detect(self, scan: Scan) -> PersonDetections:
+        c = self.config
+        if not c.enabled:
+            return PersonDetections.empty(scan.stamp, scan.frame_id)
+        clusters, prob = self.classify(scan)
+        xy = clusters.xy
+        is_leg = prob >= self.threshold
+        persons, conf, legs = _people(xy, prob, self.threshold, self.partner_threshold,
+                                      self.single_leg_threshold, c.pair_distance,
+                                      c.single_legs, c.single_leg_weight, c.single_leg_offset,
+                                      c.max_legs)
+        return PersonDetections(stamp=float(scan.stamp), frame_id=scan.frame_id, xy=persons,
+                                confidence=conf, legs=legs, leg_xy=xy, leg_probability=prob,
+                                is_leg=is_leg, occluded=clusters.occluded, clusters=clusters)
+
+
+def _people(xy, prob, leg_threshold, partner_threshold, single_threshold, pair_distance,
+            single_legs, weight, offset, max_legs):
+    """Pairs of legs, then lone legs, as people (see the module docstring).
+
+    Few clusters reach the partner threshold (a handful per scan, at most ``max_legs``, the
+    most probable), so the pairing runs on Python lists: cheaper than numpy at that size.
+    """
+    lowest = min(partner_threshold, single_threshold if single_legs else 1.0)
+    cand = np.flatnonzero(prob >= lowest)
+    if cand.size == 0:
+        return _NO_PERSONS
+    if cand.size > max_legs:
+        cand = cand[np.argsort(-prob[cand], kind='stable')[:max_legs]]
+    pts = xy[cand].tolist()
+    ps = prob[cand].tolist()
+    reach = pair_distance * pair_distance
+    options = []
+    for a in range(len(ps)):
+        pa = ps[a]
+        if pa < partner_threshold:
+            continue
+        xa, ya = pts[a]
+        for b in range(a + 1, len(ps)):
+            pb = ps[b]
+            if pb < partner_threshold or (pa < leg_threshold and pb < leg_threshold):
+                continue
+            dx, dy = xa - pts[b][0], ya - pts[b][1]
+            if dx * dx + dy * dy <= reach:
+                options.append((-(pa + pb), a, b))
+    options.sort()
+    used = set()
+    rows = []                                   # x, y, confidence, leg, other leg
+    for _, a, b in options:
+        if a not in used and b not in used:
+            used.update((a, b))
+            rows.append((0.5 * (pts[a][0] + pts[b][0]), 0.5 * (pts[a][1] + pts[b][1]),
+                         0.5 * (ps[a] + ps[b]), a, b))
+    if single_legs:
+        paired = len(rows)
+        for a in range(len(ps)):
+            if a in used or ps[a] < single_threshold:
+                continue
+            x, y = pts[a]
+            scale = 1.0 + offset / max(math.hypot(x, y), 1e-6)
+            x, y = x * scale, y * scale
+            if all((x - q[0]) ** 2 + (y - q[1]) ** 2 > reach for q in rows[:paired]):
+                rows.append((x, y, weight * ps[a], a, -1))
+    if not rows:
+        return _NO_PERSONS
+    table = np.array(rows)
+    legs = table[:, 3:5].astype(np.intp)
+    legs = np.where(legs >= 0, cand[np.maximum(legs, 0)], -1)
+    return table[:, :2].copy(), table[:, 2].copy(), legs
+
+
+_NO_PERSONS = (np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2), dtype=np.intp))
