@@ -83,7 +83,8 @@ class Blobs:
     * the motion blobs of the difference map (paper Sec. 6): ``xy``, ``cells``, ``extent``,
       ``structure``;
     * the people found by the shape of their legs (``persons``, ``person_confidence``,
-      ``person_free``: where they stand was seen free before, so they walked in), when the
+      ``person_free``: where they stand was seen free before, so they walked in;
+      ``person_spread``: the distance between the two legs, NaN for a lone leg), when the
       person detector runs;
     * the scan's compact segments (``segments``: centroids of the jump-distance clusters
       narrower than a metre, with their leg probability ``segment_leg`` when the person
@@ -103,6 +104,7 @@ class Blobs:
     persons: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     person_confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
     person_free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    person_spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
     segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     segment_leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
 

@@ -147,6 +147,10 @@ class HypothesisConfig:
         'or once it has moved this far (m) from where it started: clutter that looks like '
         'legs (chair and table legs) stands where the scans have always seen something. '
         '0 = no such condition.', min=0.0, max=10.0)
+    gait_spread: float = param(
+        0.1, 'A person whose two legs\' separation has varied by this much (m) is walking '
+        '(the legs swing; chair or table legs keep their distance): it may be confirmed '
+        'without having moved person_min_travel. 0 = off.', min=0.0, max=2.0)
     person_kind_samples: int = param(
         2, 'Supports by person detections after which a track is of kind person.', min=1,
         max=1000)
@@ -169,8 +173,9 @@ class HypothesisConfig:
 
 _ID, _T, _WEIGHT, _SAMPLES, _CONFIRMED, _SUPPORTED, _BORN = 0, 5, 8, 9, 10, 11, 12
 _STATE, _VEL, _POS, _START = slice(1, 5), slice(3, 5), slice(6, 8), slice(13, 15)
-_PERSONS, _STOPPED, _ORIGIN = 15, 16, 17   # _ORIGIN: 0 motion, 1 person, 2 person in free space
-_P0 = 18
+_PERSONS, _STOPPED, _ORIGIN = 15, 16, 17   # _ORIGIN: 0 motion, 1 person, 2 person walked
+_SPREAD = slice(18, 20)                      # least and largest leg separation seen
+_P0 = 20
 
 
 class HypothesisArrays:
@@ -382,6 +387,9 @@ class HypothesisTracker:
         person_free = np.asarray(blobs.person_free, dtype=bool).reshape(-1)
         if person_free.shape[0] != persons.shape[0]:
             person_free = np.zeros(persons.shape[0], bool)
+        spread = np.asarray(blobs.person_spread, dtype=float).reshape(-1)
+        if spread.shape[0] != persons.shape[0]:
+            spread = np.full(persons.shape[0], np.nan)
         segments, leg = _finite_rows(blobs.segments, blobs.segment_leg)
 
         hyp = self.hyp
@@ -421,7 +429,8 @@ class HypothesisTracker:
             rows = np.flatnonzero(by_person)
             parts.append(self._support_person(hyp.take(rows), pred[rows],
                                               persons[person_of[rows]],
-                                              person_free[person_of[rows]], t))
+                                              person_free[person_of[rows]],
+                                              spread[person_of[rows]], t))
         # Gating, splitting and Equation 3 for the others.
         gate = (dist <= c.gate) & ~by_person[:, None]
         hi, bi = np.nonzero(gate)
@@ -447,7 +456,8 @@ class HypothesisTracker:
             created += len(born)
             parts.append(born)
         if fresh.any():
-            born = self._create_from_persons(persons[fresh], person_free[fresh], t)
+            born = self._create_from_persons(persons[fresh], person_free[fresh],
+                                             spread[fresh], t)
             created += len(born)
             parts.append(born)
 
@@ -594,7 +604,7 @@ class HypothesisTracker:
                 structure[keep]
         return self._create(new_xy, prev_xy, dt, t, structure)
 
-    def _create_from_persons(self, persons, free, t) -> HypothesisArrays:
+    def _create_from_persons(self, persons, free, spread, t) -> HypothesisArrays:
         """A person detection that no hypothesis claims starts one: its velocity from the
         nearest person detection of an earlier frame within reach, else zero."""
         c = self.config
@@ -616,12 +626,14 @@ class HypothesisTracker:
         out = self._create(persons, prev, dt, t, np.full(persons.shape[0], np.nan))
         out.data[:, _PERSONS] = 1.0
         out.data[:, _ORIGIN] = np.where(free, 2.0, 1.0)
+        out.data[:, _SPREAD] = np.column_stack((spread, spread))
         return out
 
-    def _support_person(self, hyp: HypothesisArrays, pred, persons, free,
+    def _support_person(self, hyp: HypothesisArrays, pred, persons, free, spread,
                         t) -> HypothesisArrays:
         """Support by a person detection: Eq. 3 with its distance, Kalman, one more sample;
-        a person seen in space that was free before has walked in (origin 2)."""
+        a person seen in space that was free before, or whose legs' separation has varied
+        by ``gait_spread``, is walking (origin 2)."""
         c = self.config
         d = np.hypot(*(persons - pred).T)
         state, P, position = self.filter.correct(hyp.state, hyp.P, hyp.t_state, persons, t)
@@ -636,7 +648,14 @@ class HypothesisTracker:
         data[:, _PERSONS] += 1.0
         data[:, _SUPPORTED] = 1.0
         data[:, _STOPPED] = 0.0
-        data[:, _ORIGIN] = np.where(free & (data[:, _ORIGIN] == 1.0), 2.0, data[:, _ORIGIN])
+        lo, hi = data[:, _SPREAD.start], data[:, _SPREAD.start + 1]
+        with np.errstate(invalid='ignore'):
+            data[:, _SPREAD.start] = np.fmin(lo, spread)
+            data[:, _SPREAD.start + 1] = np.fmax(hi, spread)
+            walks = free | ((c.gait_spread > 0)
+                            & (data[:, _SPREAD.start + 1] - data[:, _SPREAD.start]
+                               >= c.gait_spread))
+        data[:, _ORIGIN] = np.where(walks & (data[:, _ORIGIN] == 1.0), 2.0, data[:, _ORIGIN])
         return hyp
 
     def _segment_of(self, hyp: HypothesisArrays, rows, pred, segments, leg) -> np.ndarray:
@@ -696,6 +715,7 @@ class HypothesisTracker:
         data[:, _SUPPORTED] = 1.0
         data[:, _BORN] = t
         data[:, _START] = new_xy
+        data[:, _SPREAD] = np.nan
         self.stats['created'] += n
         return out
 

@@ -337,6 +337,13 @@ class Detector:
             b.persons = transform_points(pose, people.xy)
             b.person_confidence = people.confidence
             b.person_free = self._walked_in(people, pose, float(scan.stamp))
+            legs = people.legs
+            pair = legs[:, 1] >= 0
+            spread = np.full(people.count, np.nan)
+            if pair.any():
+                d = people.leg_xy[legs[pair, 0]] - people.leg_xy[legs[pair, 1]]
+                spread[pair] = np.hypot(d[:, 0], d[:, 1])
+            b.person_spread = spread
             local = people.leg_xy
             b.segment_leg = people.leg_probability
             det.persons = people
