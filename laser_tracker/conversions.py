@@ -597,10 +597,12 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
     A DELETEALL marker, one CYLINDER per motion blob (ns ``blobs``, id = index, position =
     centroid, scale.x = scale.y = extent, text = JSON ``{"cells": n, "structure": angle or
     null}``), one CYLINDER per person detection (ns ``persons``, id = index, text = JSON
-    ``{"confidence": c}``), one POINTS marker (ns ``segments``, id 0) whose points are the
-    scan's compact segments, and one ARROW (ns ``scanner``, id 0) whose pose is the scanner
-    pose and whose text is JSON ``{"restarted": bool}`` (the ego-motion restarted its pose
-    chain: tracks are void).
+    ``{"confidence": c, "free": bool, "spread": m or null}``: free = where the legs stand was
+    seen free before; spread = the distance between its two legs),
+    one POINTS marker (ns ``segments``, id 0) whose points are the scan's compact segments
+    (text = JSON ``{"leg": [leg probability of each]}``), and one ARROW (ns ``scanner``,
+    id 0) whose pose is the scanner pose and whose text is JSON ``{"restarted": bool}`` (the
+    ego-motion restarted its pose chain: tracks are void).
     """
     f = factory
     stamp, frame_id = float(blobs.stamp), blobs.frame_id
@@ -628,7 +630,11 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
             scale=f.make('geometry_msgs/msg/Vector3', x=extent, y=extent, z=0.1),
             color=color(1.0, 0.4, 0.0, 0.8), text=text))
     for i, (px, py) in enumerate(np.asarray(blobs.persons, float).reshape(-1, 2)):
-        text = json.dumps({'confidence': round(float(blobs.person_confidence[i]), 4)},
+        free = blobs.person_free[i] if i < len(blobs.person_free) else False
+        spread = float(blobs.person_spread[i]) if i < len(blobs.person_spread) else math.nan
+        text = json.dumps({'confidence': round(float(blobs.person_confidence[i]), 4),
+                           'free': bool(free),
+                           'spread': round(spread, 4) if math.isfinite(spread) else None},
                           separators=(',', ':'))
         markers.append(f.make(
             'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='persons',
@@ -637,9 +643,13 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
             color=color(0.9, 0.1, 0.9, 0.6), text=text))
     segments = np.asarray(blobs.segments, float).reshape(-1, 2)
     if segments.shape[0]:
+        leg = np.asarray(blobs.segment_leg, float).reshape(-1)
+        leg = leg if leg.shape[0] == segments.shape[0] else np.zeros(segments.shape[0])
         markers.append(f.make(
             'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
             ns='segments', id=0, type=MARKER_POINTS, action=MARKER_ADD, pose=pose(0.0, 0.0),
+            text=json.dumps({'leg': [round(float(v), 3) for v in leg]},
+                            separators=(',', ':')),
             scale=f.make('geometry_msgs/msg/Vector3', x=0.05, y=0.05, z=0.05),
             color=color(0.5, 0.5, 0.5, 0.6),
             points=[f.make('geometry_msgs/msg/Point', x=float(a), y=float(b), z=0.0)
@@ -690,21 +700,34 @@ def blobs_from_marker_array(msg):
                 extra = json.loads(m.text) if m.text else {}
             except json.JSONDecodeError:
                 extra = {}
+            extra = extra if isinstance(extra, dict) else {}
+            spread = extra.get('spread')
             persons.append((m.pose.position.x, m.pose.position.y,
-                            number(extra if isinstance(extra, dict) else {}, 'confidence',
-                                   1.0)))
+                            number(extra, 'confidence', 1.0),
+                            1.0 if extra.get('free') is True else 0.0,
+                            math.nan if spread is None else number(extra, 'spread')))
         elif m.ns == 'segments' and m.type == MARKER_POINTS:
-            segments.extend((p.x, p.y) for p in m.points)
+            points = [(p.x, p.y) for p in m.points]
+            try:
+                leg = json.loads(m.text).get('leg', []) if m.text else []
+            except (json.JSONDecodeError, AttributeError):
+                leg = []
+            if not isinstance(leg, list) or len(leg) != len(points):
+                leg = [0.0] * len(points)
+            segments.extend((x, y, float(v) if isinstance(v, (int, float)) else 0.0)
+                            for (x, y), v in zip(points, leg))
     if origin is None:
         raise ValueError('MarkerArray has no scanner marker: not a blobs message')
     arr = np.array(rows, dtype=float).reshape(-1, 5)
-    people = np.array(persons, dtype=float).reshape(-1, 3)
+    people = np.array(persons, dtype=float).reshape(-1, 5)
     return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
                  cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
                  structure=arr[:, 4].copy(), frame_id=frame_id, restarted=restarted,
                  stamp_ns=stamp_ns, persons=people[:, :2].copy(),
-                 person_confidence=people[:, 2].copy(),
-                 segments=np.array(segments, dtype=float).reshape(-1, 2))
+                 person_confidence=people[:, 2].copy(), person_free=people[:, 3] > 0.5,
+                 person_spread=people[:, 4].copy(),
+                 segments=np.array(segments, dtype=float).reshape(-1, 3)[:, :2].copy(),
+                 segment_leg=np.array(segments, dtype=float).reshape(-1, 3)[:, 2].copy())
 
 
 # ----------------------------------------------------------------------------------- tracks

@@ -104,10 +104,13 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'difference.static_time': 0.0,     # no static background
         'blobs.position': 'changed',       # the blob is its changed cells
         'blobs.centre_offset': 0.0,
+        'person_detector.enabled': False,  # what moves only: no people by leg shape
     },
     'tracking': {
         'hypotheses.creation_window': 0.0,  # creation pairs with the previous frame only
         'hypotheses.ride_along_speed': 0.0,  # no ride-along test
+        'hypotheses.segment_gate': 0.0,    # a hypothesis without a blob coasts and fades
+        'hypotheses.person_min_travel': 0.0,
     },
 }
 

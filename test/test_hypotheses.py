@@ -182,15 +182,18 @@ def test_bad_blobs_are_dropped_with_a_warning(caplog):
     assert 'not finite' in caplog.text
 
 
-def people(t, *persons, confidence=0.9, segments=(), blobs_xy=()):
+def people(t, *persons, confidence=0.9, segments=(), blobs_xy=(), free=True):
     b = frame(t, *blobs_xy)
     b.persons = np.array(persons, float).reshape(-1, 2)
     b.person_confidence = np.full(b.persons.shape[0], confidence)
+    b.person_free = np.full(b.persons.shape[0], free)
     b.segments = np.array(segments, float).reshape(-1, 2)
     return b
 
 
 def test_a_standing_person_detected_by_shape_is_tracked_and_not_moving():
+    """Someone who walked into space seen free and stands there is tracked; legs where
+    something has always stood (chair legs) are not, until they move."""
     tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
     for k in range(8):
         r = tr.update(people(k * DT, (2.0, 1.0)))
@@ -199,6 +202,13 @@ def test_a_standing_person_detected_by_shape_is_tracked_and_not_moving():
     report = tr.report(7 * DT)
     assert report.kind[0] == 'person' and not report.moving[0]
     assert np.allclose(report.position[0], (2.0, 1.0), atol=0.05)
+    clutter = HypothesisTracker(HypothesisConfig(), KalmanConfig())
+    for k in range(20):
+        r = clutter.update(people(k * DT, (2.0, 1.0), free=False))
+    assert len(r.hypotheses) == 1 and not r.hypotheses.confirmed.any()
+    for k in range(20, 30):                  # it walks off into free space: a person
+        r = clutter.update(people(k * DT, (2.0 + 0.8 * (k - 19) * DT, 1.0), free=k > 22))
+    assert r.hypotheses.confirmed.any()
 
 
 def test_the_legs_of_a_detected_person_do_not_split_the_track():
@@ -225,8 +235,8 @@ def test_a_moving_object_that_is_no_person_is_still_tracked_by_motion():
 
 
 def test_an_object_that_stops_keeps_its_id_and_walks_on():
-    cfg = HypothesisConfig(stop_gate=0.4)
-    for config, keeps in ((cfg, True), (HypothesisConfig(), False)):
+    cfg = HypothesisConfig(segment_gate=0.5)
+    for config, keeps in ((cfg, True), (HypothesisConfig(segment_gate=0.0), False)):
         tr = HypothesisTracker(config, KalmanConfig())
         r = walk(tr, 8)[-1]
         (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]

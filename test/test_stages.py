@@ -180,7 +180,7 @@ def test_second_publisher_on_blobs_changes_nothing():
         a = once.update(blobs(t, t))
         b = twice.update(blobs(t, t))
         assert twice.update(blobs(t, t)) is None
-        assert np.array_equal(a.hypotheses.data, b.hypotheses.data)
+        assert np.array_equal(a.hypotheses.data, b.hypotheses.data, equal_nan=True)
     assert twice.events.counts['blobs skipped: duplicate stamp'] == 12
     assert 'restart' not in twice.events.counts
 

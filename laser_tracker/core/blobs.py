@@ -63,6 +63,12 @@ class BlobConfig:
                                  "its surface's width: the centre of a roughly round object "
                                  'lies about half its width behind the surface the laser sees. '
                                  '0 = the surface itself (paper).', min=0.0, max=2.0)
+    segment_jump: float = param(0.13, 'Consecutive scan points further apart than this (m) '
+                                'end a segment (the compact segments that keep a stopped '
+                                "object's track alive; the person detector's clusters when "
+                                'it runs).', min=0.01, max=2.0)
+    segment_max_width: float = param(1.0, 'Segments wider than this (m, end to end) are '
+                                     'structure, not an object.', min=0.05, max=10.0)
     structure_min_points: int = param(6, 'Fewest surface points that can form a wall.', min=3,
                                       max=1000)
     structure_elongation: float = param(3.0, 'Ratio of the principal standard deviations of '
@@ -76,10 +82,13 @@ class Blobs:
 
     * the motion blobs of the difference map (paper Sec. 6): ``xy``, ``cells``, ``extent``,
       ``structure``;
-    * the people found by the shape of their legs (``persons``, ``person_confidence``),
-      when the person detector runs;
+    * the people found by the shape of their legs (``persons``, ``person_confidence``,
+      ``person_free``: where they stand was seen free before, so they walked in;
+      ``person_spread``: the distance between the two legs, NaN for a lone leg), when the
+      person detector runs;
     * the scan's compact segments (``segments``: centroids of the jump-distance clusters
-      narrower than a metre), occupied space that keeps a stopped object's track alive.
+      narrower than a metre, with their leg probability ``segment_leg`` when the person
+      detector runs, else 0), occupied space that keeps a stopped object's track alive.
     """
 
     stamp: float
@@ -94,7 +103,10 @@ class Blobs:
     stamp_ns: int | None = None           # the scan's exact stamp (integer ns), when known
     persons: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     person_confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    person_free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    person_spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
     segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    segment_leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def count(self) -> int:
@@ -286,3 +298,22 @@ def surface_centroids(centroids: np.ndarray, points: np.ndarray, config: BlobCon
     the scan's end points in beam order: see ``_Surfaces.measure``."""
     return _Surfaces(points, config.surface_gap, centroids, resolution).measure(
         centroids, config, resolution)
+
+
+def scan_segments(points: np.ndarray, jump: float, max_width: float,
+                  min_points: int = 3) -> np.ndarray:
+    """Centroids (s, 2) of the compact segments of a scan's end points ``points`` (beam
+    order): runs of points closer than ``jump`` to their neighbour, with at least
+    ``min_points`` points and at most ``max_width`` between their ends."""
+    if points.shape[0] == 0:
+        return np.zeros((0, 2))
+    step = np.diff(points, axis=0)
+    starts = np.concatenate(([0], np.flatnonzero(np.einsum('ij,ij->i', step, step)
+                                                  > jump * jump) + 1))
+    ends = np.append(starts[1:], points.shape[0]) - 1
+    count = ends - starts + 1
+    width = np.hypot(*(points[ends] - points[starts]).T)
+    keep = (count >= min_points) & (width <= max_width)
+    csum = np.zeros((points.shape[0] + 1, 2))
+    np.cumsum(points, axis=0, out=csum[1:])
+    return ((csum[ends + 1] - csum[starts]) / count[:, None])[keep]

@@ -141,23 +141,41 @@ class HypothesisConfig:
     person_create_confidence: float = param(
         0.5, 'A person detection that no hypothesis claims creates one when its confidence '
         'is at least this.', min=0.0, max=1.0)
+    person_min_travel: float = param(
+        1.5, 'A hypothesis started by a person detection is confirmed only once a person '
+        'detection supporting it stood in space seen free before (someone who walked in), '
+        'or once it has moved this far (m) from where it started: clutter that looks like '
+        'legs (chair and table legs) stands where the scans have always seen something. '
+        '0 = no such condition.', min=0.0, max=10.0)
+    gait_spread: float = param(
+        0.1, 'A person whose two legs\' separation has varied by this much (m) is walking '
+        '(the legs swing; chair or table legs keep their distance): it may be confirmed '
+        'without having moved person_min_travel. 0 = off.', min=0.0, max=2.0)
     person_kind_samples: int = param(
         2, 'Supports by person detections after which a track is of kind person.', min=1,
         max=1000)
-    stop_gate: float = param(
-        0.0, 'A confirmed hypothesis with no supporting blob or person but a compact scan '
-        'segment within this distance (m) of its position has stopped: it stays there, '
-        'its velocity measured as zero, without losing weight, as long as the object stays '
-        'in the scans; when it walks on, its blobs support it again (same id). 0 = paper '
-        '(it coasts and fades).', min=0.0, max=2.0)
+    segment_gate: float = param(
+        0.5, 'A confirmed hypothesis with no supporting blob or person detection is '
+        'supported by the nearest compact scan segment within this distance (m) of its '
+        'prediction (a person\'s: one with a leg probability of at least segment_min_leg), '
+        'without gaining weight or samples: an object that stops stays tracked, with the '
+        'same id, as long as it stays in the scans, and a person the detector misses for a '
+        'few scans keeps the track. 0 = paper (it coasts and fades).', min=0.0, max=2.0)
+    segment_min_leg: float = param(
+        0.1, 'Least leg probability of a segment that supports a person\'s track.',
+        min=0.0, max=1.0)
+    stop_radius: float = param(
+        0.15, 'A supporting segment within this distance (m) of the track\'s position means '
+        'the object stands: its velocity is measured as zero.', min=0.0, max=2.0)
     max_gap: float = param(2.0, 'A gap between frames longer than this (s) drops every '
                            'hypothesis (predictions are meaningless).', min=0.01, max=3600.0)
 
 
 _ID, _T, _WEIGHT, _SAMPLES, _CONFIRMED, _SUPPORTED, _BORN = 0, 5, 8, 9, 10, 11, 12
 _STATE, _VEL, _POS, _START = slice(1, 5), slice(3, 5), slice(6, 8), slice(13, 15)
-_PERSONS, _STOPPED = 15, 16
-_P0 = 17
+_PERSONS, _STOPPED, _ORIGIN = 15, 16, 17   # _ORIGIN: 0 motion, 1 person, 2 person walked
+_SPREAD = slice(18, 20)                      # least and largest leg separation seen
+_P0 = 20
 
 
 class HypothesisArrays:
@@ -170,8 +188,9 @@ class HypothesisArrays:
     (k, d, d), ``position`` (k, 2) the estimate at the current frame, ``velocity`` (k, 2),
     ``weight`` 0..100, ``samples``, ``confirmed``, ``supported`` (a blob supported it this
     frame), ``born`` (creation stamp), ``start`` (k, 2) where it was created (the later
-    blob of its creation pair), ``person_samples`` (supports by person detections) and
-    ``stopped`` (held by the occupancy of a stopped object this frame).
+    blob of its creation pair), ``person_samples`` (supports by person detections),
+    ``stopped`` (held by the occupancy of a stopped object this frame) and ``origin`` (what
+    created it: 0 motion, 1 a person detection, 2 a person detection in space seen free).
     """
 
     __slots__ = ('data', 'dim')
@@ -221,6 +240,7 @@ class HypothesisArrays:
     start = property(lambda self: self.data[:, _START],
                      lambda self, v: self.data.__setitem__((slice(None), _START), v))
     person_samples = property(lambda self: self.data[:, _PERSONS].astype(np.int64))
+    origin = property(lambda self: self.data[:, _ORIGIN].astype(np.int64))
     stopped = property(lambda self: self.data[:, _STOPPED] > 0.5)
 
     @property
@@ -364,21 +384,35 @@ class HypothesisTracker:
         if structure.shape[0] != xy.shape[0]:
             structure = np.full(xy.shape[0], np.nan)
         persons, confidence = _finite_rows(blobs.persons, blobs.person_confidence)
-        segments, _ = _finite_rows(blobs.segments)
+        person_free = np.asarray(blobs.person_free, dtype=bool).reshape(-1)
+        if person_free.shape[0] != persons.shape[0]:
+            person_free = np.zeros(persons.shape[0], bool)
+        spread = np.asarray(blobs.person_spread, dtype=float).reshape(-1)
+        if spread.shape[0] != persons.shape[0]:
+            spread = np.full(persons.shape[0], np.nan)
+        segments, leg = _finite_rows(blobs.segments, blobs.segment_leg)
 
         hyp = self.hyp
         k = len(hyp)
         pred = self.filter.predict(hyp.state, hyp.t_state, t) if k else np.zeros((0, 2))
         # People first: each hypothesis takes its nearest person detection within the gate;
-        # the motion blobs of a detected person (its legs) are that person.
+        # an unclaimed, confident enough one starts a hypothesis; the motion blobs of the
+        # people so used (their legs) are those people.
         person_of = np.full(k, -1, np.intp)
+        fresh = np.zeros(persons.shape[0], bool)
         if persons.shape[0]:
+            dp = _distances(pred, persons)
             if k:
-                dp = _distances(pred, persons)
                 near = dp.argmin(axis=1)
                 person_of = np.where(dp[np.arange(k), near] <= c.person_gate, near, -1)
-            if xy.shape[0] and c.person_radius > 0:
-                legs = _distances(xy, persons).min(axis=1) <= c.person_radius
+            claimed = (dp <= c.person_gate).any(axis=0) if k else fresh.copy()
+            fresh = ~claimed & (confidence >= c.person_create_confidence)
+            # a person starting a hypothesis takes its legs' blobs only if seen walking in:
+            # else the blobs may be a mover beside clutter and start their own
+            used = fresh & person_free
+            used[person_of[person_of >= 0]] = True
+            if xy.shape[0] and c.person_radius > 0 and used.any():
+                legs = _distances(xy, persons[used]).min(axis=1) <= c.person_radius
                 xy, structure = xy[~legs], structure[~legs]
         b = xy.shape[0]
         dist = _distances(pred, xy)
@@ -396,7 +430,9 @@ class HypothesisTracker:
         if by_person.any():
             rows = np.flatnonzero(by_person)
             parts.append(self._support_person(hyp.take(rows), pred[rows],
-                                              persons[person_of[rows]], t))
+                                              persons[person_of[rows]],
+                                              person_free[person_of[rows]],
+                                              spread[person_of[rows]], t))
         # Gating, splitting and Equation 3 for the others.
         gate = (dist <= c.gate) & ~by_person[:, None]
         hi, bi = np.nonzero(gate)
@@ -406,11 +442,13 @@ class HypothesisTracker:
         if unsupported.any():
             dt_frame = t - self.prev_stamp if self.prev_stamp is not None else 0.0
             rest = np.flatnonzero(unsupported)
-            stopped = self._stopped(hyp, rest, segments)
-            if stopped.any():
-                parts.append(self._hold(hyp.take(rest[stopped]), segments, t))
-            if (~stopped).any():
-                moving_on = rest[~stopped]
+            segment = self._segment_of(hyp, rest, pred[rest], segments, leg)
+            held = segment >= 0
+            if held.any():
+                parts.append(self._support_segment(hyp.take(rest[held]), pred[rest[held]],
+                                                   segments[segment[held]], t))
+            if (~held).any():
+                moving_on = rest[~held]
                 parts.append(self._coast(hyp.take(moving_on), pred[moving_on], dt_frame))
 
         created = 0
@@ -419,16 +457,11 @@ class HypothesisTracker:
                                            b_weight[new_blob], t)
             created += len(born)
             parts.append(born)
-        if persons.shape[0]:
-            claimed = np.zeros(persons.shape[0], bool)
-            claimed[person_of[by_person]] = True
-            if k:
-                claimed |= (_distances(pred, persons) <= c.person_gate).any(axis=0)
-            fresh = ~claimed & (confidence >= c.person_create_confidence)
-            if fresh.any():
-                born = self._create_from_persons(persons[fresh], t)
-                created += len(born)
-                parts.append(born)
+        if fresh.any():
+            born = self._create_from_persons(persons[fresh], person_free[fresh],
+                                             spread[fresh], t)
+            created += len(born)
+            parts.append(born)
 
         hyp = HypothesisArrays.concat(parts) if parts else HypothesisArrays.empty(
             self.filter.dim)
@@ -449,6 +482,9 @@ class HypothesisTracker:
             hyp, was_confirmed = hyp.take(top), was_confirmed[top]
         self._bound_active = bounded
         ready = hyp.samples >= c.confirm_samples
+        if c.person_min_travel > 0:
+            travel2 = ((hyp.position - hyp.start) ** 2).sum(axis=1)
+            ready &= (hyp.origin != 1) | (travel2 >= c.person_min_travel ** 2)
         if c.ride_along_speed > 0:
             ready &= ~self._riding_along(hyp, blobs, t)
         if c.confirm_min_speed > 0:
@@ -570,7 +606,7 @@ class HypothesisTracker:
                 structure[keep]
         return self._create(new_xy, prev_xy, dt, t, structure)
 
-    def _create_from_persons(self, persons, t) -> HypothesisArrays:
+    def _create_from_persons(self, persons, free, spread, t) -> HypothesisArrays:
         """A person detection that no hypothesis claims starts one: its velocity from the
         nearest person detection of an earlier frame within reach, else zero."""
         c = self.config
@@ -591,10 +627,15 @@ class HypothesisTracker:
             todo[idx[ok]] = False
         out = self._create(persons, prev, dt, t, np.full(persons.shape[0], np.nan))
         out.data[:, _PERSONS] = 1.0
+        out.data[:, _ORIGIN] = np.where(free, 2.0, 1.0)
+        out.data[:, _SPREAD] = np.column_stack((spread, spread))
         return out
 
-    def _support_person(self, hyp: HypothesisArrays, pred, persons, t) -> HypothesisArrays:
-        """Support by a person detection: Eq. 3 with its distance, Kalman, one more sample."""
+    def _support_person(self, hyp: HypothesisArrays, pred, persons, free, spread,
+                        t) -> HypothesisArrays:
+        """Support by a person detection: Eq. 3 with its distance, Kalman, one more sample;
+        a person seen in space that was free before, or whose legs' separation has varied
+        by ``gait_spread``, is walking (origin 2)."""
         c = self.config
         d = np.hypot(*(persons - pred).T)
         state, P, position = self.filter.correct(hyp.state, hyp.P, hyp.t_state, persons, t)
@@ -609,30 +650,55 @@ class HypothesisTracker:
         data[:, _PERSONS] += 1.0
         data[:, _SUPPORTED] = 1.0
         data[:, _STOPPED] = 0.0
+        lo, hi = data[:, _SPREAD.start], data[:, _SPREAD.start + 1]
+        with np.errstate(invalid='ignore'):
+            data[:, _SPREAD.start] = np.fmin(lo, spread)
+            data[:, _SPREAD.start + 1] = np.fmax(hi, spread)
+            walks = free | ((c.gait_spread > 0)
+                            & (data[:, _SPREAD.start + 1] - data[:, _SPREAD.start]
+                               >= c.gait_spread))
+        data[:, _ORIGIN] = np.where(walks & (data[:, _ORIGIN] == 1.0), 2.0, data[:, _ORIGIN])
         return hyp
 
-    def _stopped(self, hyp: HypothesisArrays, rows, segments) -> np.ndarray:
-        """Mask over ``rows``: confirmed hypotheses with a scan segment within ``stop_gate``
-        of their position (the object stopped and is still there)."""
-        gate = self.config.stop_gate
-        if gate <= 0 or segments.shape[0] == 0 or rows.size == 0:
-            return np.zeros(rows.size, bool)
-        near = _distances(hyp.position[rows], segments).min(axis=1) <= gate
-        return near & hyp.confirmed[rows]
+    def _segment_of(self, hyp: HypothesisArrays, rows, pred, segments, leg) -> np.ndarray:
+        """Per row of ``rows`` (unsupported hypotheses): the index of the segment that
+        supports it (``segment_gate``), -1 for none. Only confirmed hypotheses; a person's
+        only by a leg-like segment."""
+        c = self.config
+        out = np.full(rows.size, -1, np.intp)
+        if c.segment_gate <= 0 or segments.shape[0] == 0 or rows.size == 0:
+            return out
+        d = _distances(pred, segments)
+        person = hyp.person_samples[rows] >= c.person_kind_samples
+        d[person[:, None] & (leg[None, :] < c.segment_min_leg)] = np.inf
+        near = d.argmin(axis=1)
+        ok = (d[np.arange(rows.size), near] <= c.segment_gate) & hyp.confirmed[rows]
+        out[ok] = near[ok]
+        return out
 
-    def _hold(self, hyp: HypothesisArrays, segments, t) -> HypothesisArrays:
-        """A stopped object: at the nearest segment, velocity measured as zero, no weight
-        lost, no new sample (it is not moving evidence)."""
-        d = _distances(hyp.position, segments)
-        at = segments[d.argmin(axis=1)]
-        state, P = self.filter.hold(hyp.state, hyp.P, at)
+    def _support_segment(self, hyp: HypothesisArrays, pred, at, t) -> HypothesisArrays:
+        """Support by a scan segment: no weight or sample gained. Within ``stop_radius`` of
+        the track's position the object stands (velocity measured as zero, it stays
+        there); else the segment is a position measurement like a blob."""
+        c = self.config
+        still = np.hypot(*(at - hyp.position).T) <= c.stop_radius
         data = hyp.data
-        data[:, _STATE] = state
-        hyp.P = P
-        data[:, _POS] = at
+        if still.any():
+            rows = np.flatnonzero(still)
+            state, P = self.filter.hold(hyp.state[rows], hyp.P[rows], at[rows])
+            data[rows, _STATE] = state
+            hyp.P[rows] = P
+            data[rows, _POS] = at[rows]
+        if (~still).any():
+            rows = np.flatnonzero(~still)
+            state, P, position = self.filter.correct(hyp.state[rows], hyp.P[rows],
+                                                     hyp.t_state[rows], at[rows], t)
+            data[rows, _STATE] = state
+            hyp.P[rows] = P
+            data[rows, _POS] = position
         data[:, _T] = t
         data[:, _SUPPORTED] = 0.0
-        data[:, _STOPPED] = 1.0
+        data[:, _STOPPED] = still
         return hyp
 
     def _create(self, new_xy, prev_xy, dt, t, structure) -> HypothesisArrays:
@@ -651,6 +717,7 @@ class HypothesisTracker:
         data[:, _SUPPORTED] = 1.0
         data[:, _BORN] = t
         data[:, _START] = new_xy
+        data[:, _SPREAD] = np.nan
         self.stats['created'] += n
         return out
 
@@ -707,6 +774,11 @@ class HypothesisTracker:
         od[:, _SAMPLES] = samples[group[rows]]
         od[:, _BORN] = data[src, _BORN]
         od[:, _START] = data[src, _START]
+        # A group with any member not started by a person standing where something always
+        # stood carries no such restriction.
+        open_ = np.zeros(k, bool)
+        np.logical_or.at(open_, group, data[:, _ORIGIN] != 1.0)
+        od[:, _ORIGIN] = np.where(open_[group[rows]], 0.0, 1.0)
         self.stats['merged'] += int(k - rows.size)
         return out, was_confirmed[src]
 

@@ -36,6 +36,7 @@ from laser_tracker.core.egomotion import EgoMotionConfig
 from laser_tracker.core.grid import GridConfig
 from laser_tracker.core.hypotheses import HypothesisArrays, HypothesisConfig
 from laser_tracker.core.kalman import KalmanConfig
+from laser_tracker.core.person_detector import PersonDetectorConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.stages import Detection, Detector, EgoMotion, StampedPose, Tracker
 
@@ -44,7 +45,7 @@ from laser_tracker.core.stages import Detection, Detector, EgoMotion, StampedPos
 
 NODES: dict[str, tuple[str, ...]] = {
     'ego_motion': ('ego_motion',),
-    'detection': ('grid', 'difference', 'blobs'),
+    'detection': ('grid', 'difference', 'blobs', 'person_detector'),
     'tracking': ('hypotheses', 'kalman'),
 }
 
@@ -57,6 +58,7 @@ class PipelineConfig:
     grid: GridConfig = field(default_factory=GridConfig)
     difference: DifferenceConfig = field(default_factory=DifferenceConfig)
     blobs: BlobConfig = field(default_factory=BlobConfig)
+    person_detector: PersonDetectorConfig = field(default_factory=PersonDetectorConfig)
     hypotheses: HypothesisConfig = field(default_factory=HypothesisConfig)
     kalman: KalmanConfig = field(default_factory=KalmanConfig)
 
@@ -114,7 +116,7 @@ class StepResult:
     ego: StampedPose | None = field(default=None, repr=False)
 
 
-STAGES = ('ego_motion', 'grid', 'difference', 'blobs', 'tracking')
+STAGES = ('ego_motion', 'grid', 'difference', 'blobs', 'persons', 'tracking')
 
 
 class Pipeline:
@@ -127,7 +129,7 @@ class Pipeline:
         self.profile = profile
         self.times = {s: 0.0 for s in STAGES}
         self.ego = EgoMotion(c.ego_motion, odom_wait)
-        self.detector = Detector(c.grid, c.difference, c.blobs,
+        self.detector = Detector(c.grid, c.difference, c.blobs, c.person_detector,
                                  times=self.times if profile else None)
         self.tracker = Tracker(c.hypotheses, c.kalman)
 

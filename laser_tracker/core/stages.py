@@ -5,7 +5,8 @@ stage          input -> output                             algorithm (paper sect
 =============  ==========================================  =================================
 ``EgoMotion``  scans + odometry -> :class:`StampedPose`     ``egomotion`` (Sec. 4)
 ``Detector``   scan + its pose -> :class:`Detection`        ``grid``, ``difference``,
-                                                           ``blobs`` (Sec. 5-6)
+                                                           ``blobs`` (Sec. 5-6),
+                                                           ``person_detector``
 ``Tracker``    blobs -> ``hypotheses.FrameResult``          ``hypotheses``, ``kalman``
                                                            (Sec. 7-9)
 ``Head``       tracks + pose -> ``head.HeadCommand``        ``head`` (Sec. 10.3)
@@ -36,17 +37,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from laser_tracker.core.blobs import BlobConfig, Blobs, segment
+from laser_tracker.core.blobs import BlobConfig, Blobs, scan_segments, segment
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map, pose_quality,
                                            pose_trusted, relative_motion)
 from laser_tracker.core.geometry import transform_points
 from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, \
     EgoMotionEstimator
-from laser_tracker.core.grid import GridBuilder, GridConfig, transform_grid
+from laser_tracker.core.grid import FREE, GridBuilder, GridConfig, lookup_stack, transform_grid
 from laser_tracker.core.head import HeadCommand, HeadConfig, HeadPointer
 from laser_tracker.core.hypotheses import FrameResult, HypothesisConfig, HypothesisTracker
 from laser_tracker.core.kalman import KalmanConfig
+from laser_tracker.core.person_detector import (DetectorModelError, PersonDetector,
+                                                PersonDetectorConfig)
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.stream import (BACKWARDS, DUPLICATE, FIRST, GAP, INVALID, EventLog,
                                        OdometryWait, StreamRules)
@@ -214,20 +217,25 @@ class Detection:
     difference: np.ndarray | None = None   # Equation 1 (bool)
     changed_cells: np.ndarray | None = None  # flat indices of the cells that made the blobs
     gated: bool = False                # pose not trusted: no changes reported
+    persons: object | None = None      # person_detector.PersonDetections (scanner frame)
 
 
 class Detector:
-    """Stage: a scan and its pose -> blobs (paper Sec. 5-6: grid, Eq. 1, blobs).
+    """Stage: a scan and its pose -> what moved and who is there (paper Sec. 5-6: grid,
+    Eq. 1, blobs; people by the shape of their legs; the scan's compact segments).
 
     Keeps the previous grids (in their own frames, with their poses). Stream rules: an
     invalid or duplicate stamp is skipped; time going backwards, a gap longer than
     ``difference.max_gap`` or a restarted pose chain drops the grid history (the next scan
-    is a first scan).
+    is a first scan). People and segments need no history and no trusted pose: they are
+    reported on every scan (in the odometry frame of the scan's pose). A person-detector
+    model that cannot be loaded leaves the motion method running, with a warning.
     """
 
     def __init__(self, grid: GridConfig | None = None,
                  difference: DifferenceConfig | None = None,
-                 blobs: BlobConfig | None = None, frame_id: str = 'odom',
+                 blobs: BlobConfig | None = None,
+                 persons: PersonDetectorConfig | None = None, frame_id: str = 'odom',
                  times: dict | None = None):
         self.times = times   # stage -> seconds, accumulated when given (profiling)
         self.events = EventLog(log, 'detection: ')
@@ -237,7 +245,18 @@ class Detector:
         self.blob_config = blobs or BlobConfig()
         self.rules = StreamRules(self.difference_config.max_gap)
         self.skipped: str | None = None
+        self._load_person_detector(persons or PersonDetectorConfig())
         self._build()
+
+    def _load_person_detector(self, config: PersonDetectorConfig) -> None:
+        self.person_config = config
+        self.person_detector = None
+        if not config.enabled:
+            return
+        try:
+            self.person_detector = PersonDetector(config)
+        except DetectorModelError as exc:
+            self.events.note('person detector off', f'{exc}; the motion method runs alone')
 
     def _build(self) -> None:
         d = self.difference_config
@@ -258,9 +277,11 @@ class Detector:
         return self.history[0][0] if self.history else None
 
     def reconfigure(self, grid: GridConfig, difference: DifferenceConfig,
-                    blobs: BlobConfig) -> None:
+                    blobs: BlobConfig, persons: PersonDetectorConfig | None = None) -> None:
         """New parameters from the next scan; a new grid geometry or memory depth drops the
-        grid history."""
+        grid history; a new person-detector configuration reloads it."""
+        if persons is not None and persons != self.person_config:
+            self._load_person_detector(persons)
         old = self.difference_config
         rebuild = (grid != self.grid_config or difference.memory != old.memory
                    or difference.max_history != old.max_history
@@ -299,12 +320,65 @@ class Detector:
         self.rules.accept(scan.stamp)
         det = self._detect(scan, np.asarray(pose.pose, dtype=float), want_grids,
                            pose.quality)
+        self._people_and_segments(scan, np.asarray(pose.pose, dtype=float), det)
         det.blobs.frame_id = pose.frame_id or self.frame_id
         det.blobs.stamp_ns = scan.stamp_ns
         det.blobs.restarted = bool(pose.quality.restarted)
         if det.gated:
             self.events.note('gated', 'ego-motion pose not trusted: no blobs', logging.DEBUG)
         return det
+
+    def _people_and_segments(self, scan: Scan, pose: np.ndarray, det: Detection) -> None:
+        """People (by leg shape) and compact segments of ``scan``, odometry frame."""
+        t0 = time.perf_counter() if self.times is not None else 0.0
+        b = det.blobs
+        if self.person_detector is not None:
+            people = self.person_detector.detect(scan)
+            b.persons = transform_points(pose, people.xy)
+            b.person_confidence = people.confidence
+            b.person_free = self._walked_in(people, pose, float(scan.stamp))
+            legs = people.legs
+            pair = legs[:, 1] >= 0
+            spread = np.full(people.count, np.nan)
+            if pair.any():
+                d = people.leg_xy[legs[pair, 0]] - people.leg_xy[legs[pair, 1]]
+                spread[pair] = np.hypot(d[:, 0], d[:, 1])
+            b.person_spread = spread
+            local = people.leg_xy
+            b.segment_leg = people.leg_probability
+            det.persons = people
+        else:
+            c = self.blob_config
+            local = scan_segments(scan.points(), c.segment_jump, c.segment_max_width)
+            b.segment_leg = np.zeros(local.shape[0])
+        b.segments = transform_points(pose, local)
+        if self.times is not None:
+            self.times['persons'] += time.perf_counter() - t0
+
+    def _walked_in(self, people, pose: np.ndarray, stamp: float) -> np.ndarray:
+        """Per person: were the places of all its legs seen FREE in an earlier grid, and are
+        they not static background? (Someone who walked in, not clutter that stood there.)"""
+        n = people.count
+        history = list(self.history)[1:]          # [0] is this scan's own grid
+        if n == 0 or not history:
+            return np.zeros(n, bool)
+        legs = people.legs
+        used = np.unique(legs[legs >= 0])
+        if used.size == 0:
+            return np.zeros(n, bool)
+        res, cells = self.grid_config.resolution, self.builder.cells
+        xy = people.leg_xy[used]
+        ij = np.floor(xy / res + cells / 2.0)
+        inside = ((ij >= 0) & (ij < cells)).all(axis=1)
+        motions = [relative_motion(h[1], pose) for h in history]
+        seen = lookup_stack(self.builder.stack, [h[0].index for h in history], motions, res,
+                            np.clip(ij, 0, cells - 1))
+        free = (seen == FREE).any(axis=0) & inside
+        if self.background is not None:
+            free &= ~self.background.static(transform_points(pose, xy), stamp)
+        leg_free = np.ones(people.leg_xy.shape[0], bool)
+        leg_free[used] = free
+        return np.where(legs >= 0, leg_free[np.maximum(legs, 0)], True).all(axis=1)
 
     def _detect(self, scan: Scan, pose: np.ndarray, want_grids: bool,
                 quality: PoseQuality) -> Detection:
