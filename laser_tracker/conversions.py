@@ -597,8 +597,9 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
     A DELETEALL marker, one CYLINDER per motion blob (ns ``blobs``, id = index, position =
     centroid, scale.x = scale.y = extent, text = JSON ``{"cells": n, "structure": angle or
     null}``), one CYLINDER per person detection (ns ``persons``, id = index, text = JSON
-    ``{"confidence": c, "free": bool, "spread": m or null}``: free = where the legs stand was
-    seen free before; spread = the distance between its two legs),
+    ``{"confidence": c, "free": bool, "static": bool, "spread": m or null}``: free = where
+    the legs stand was seen free before, static = the legs stand on static background,
+    spread = the distance between its two legs),
     one POINTS marker (ns ``segments``, id 0) whose points are the scan's compact segments
     (text = JSON ``{"leg": [leg probability of each]}``), and one ARROW (ns ``scanner``,
     id 0) whose pose is the scanner pose and whose text is JSON ``{"restarted": bool}`` (the
@@ -632,8 +633,9 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
     for i, (px, py) in enumerate(np.asarray(blobs.persons, float).reshape(-1, 2)):
         free = blobs.person_free[i] if i < len(blobs.person_free) else False
         spread = float(blobs.person_spread[i]) if i < len(blobs.person_spread) else math.nan
+        static = blobs.person_static[i] if i < len(blobs.person_static) else False
         text = json.dumps({'confidence': round(float(blobs.person_confidence[i]), 4),
-                           'free': bool(free),
+                           'free': bool(free), 'static': bool(static),
                            'spread': round(spread, 4) if math.isfinite(spread) else None},
                           separators=(',', ':'))
         markers.append(f.make(
@@ -705,7 +707,8 @@ def blobs_from_marker_array(msg):
             persons.append((m.pose.position.x, m.pose.position.y,
                             number(extra, 'confidence', 1.0),
                             1.0 if extra.get('free') is True else 0.0,
-                            math.nan if spread is None else number(extra, 'spread')))
+                            math.nan if spread is None else number(extra, 'spread'),
+                            1.0 if extra.get('static') is True else 0.0))
         elif m.ns == 'segments' and m.type == MARKER_POINTS:
             points = [(p.x, p.y) for p in m.points]
             try:
@@ -719,13 +722,13 @@ def blobs_from_marker_array(msg):
     if origin is None:
         raise ValueError('MarkerArray has no scanner marker: not a blobs message')
     arr = np.array(rows, dtype=float).reshape(-1, 5)
-    people = np.array(persons, dtype=float).reshape(-1, 5)
+    people = np.array(persons, dtype=float).reshape(-1, 6)
     return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
                  cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
                  structure=arr[:, 4].copy(), frame_id=frame_id, restarted=restarted,
                  stamp_ns=stamp_ns, persons=people[:, :2].copy(),
                  person_confidence=people[:, 2].copy(), person_free=people[:, 3] > 0.5,
-                 person_spread=people[:, 4].copy(),
+                 person_spread=people[:, 4].copy(), person_static=people[:, 5] > 0.5,
                  segments=np.array(segments, dtype=float).reshape(-1, 3)[:, :2].copy(),
                  segment_leg=np.array(segments, dtype=float).reshape(-1, 3)[:, 2].copy())
 

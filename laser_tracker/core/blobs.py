@@ -84,8 +84,8 @@ class Blobs:
       ``structure``;
     * the people found by the shape of their legs (``persons``, ``person_confidence``,
       ``person_free``: where they stand was seen free before, so they walked in;
-      ``person_spread``: the distance between the two legs, NaN for a lone leg), when the
-      person detector runs;
+      ``person_spread``: the distance between the two legs, NaN for a lone leg;
+      ``person_static``: all its legs on static background), when the person detector runs;
     * the scan's compact segments (``segments``: centroids of the jump-distance clusters
       narrower than a metre, with their leg probability ``segment_leg`` when the person
       detector runs, else 0), occupied space that keeps a stopped object's track alive.
@@ -105,6 +105,7 @@ class Blobs:
     person_confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
     person_free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     person_spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    person_static: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     segment_leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
 

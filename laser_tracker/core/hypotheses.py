@@ -138,6 +138,10 @@ class HypothesisConfig:
     person_radius: float = param(
         0.45, 'Motion blobs within this distance (m) of a person detection are that '
         'person (their legs): they neither split nor create hypotheses.', min=0.0, max=5.0)
+    person_tolerance: float = param(
+        0.25, 'Eq. 3 for a person detection counts only its distance from the prediction '
+        'beyond this (m): where a person stands between two swinging legs is less certain '
+        'than a blob.', min=0.0, max=2.0)
     person_create_confidence: float = param(
         0.5, 'A person detection that no hypothesis claims creates one when its confidence '
         'is at least this.', min=0.0, max=1.0)
@@ -148,19 +152,21 @@ class HypothesisConfig:
         'legs (chair and table legs) stands where the scans have always seen something. '
         '0 = no such condition.', min=0.0, max=10.0)
     gait_spread: float = param(
-        0.1, 'A person whose two legs\' separation has varied by this much (m) is walking '
-        '(the legs swing; chair or table legs keep their distance): it may be confirmed '
-        'without having moved person_min_travel. 0 = off.', min=0.0, max=2.0)
+        0.1, 'A person whose two legs\' separation has varied by this much (m), off static '
+        'background, is walking (the legs swing; chair or table legs keep their distance '
+        'and stand where the scans have long seen something): it may be confirmed without '
+        'having moved person_min_travel. 0 = off.', min=0.0, max=2.0)
     person_kind_samples: int = param(
         2, 'Supports by person detections after which a track is of kind person.', min=1,
         max=1000)
     segment_gate: float = param(
-        0.5, 'A confirmed hypothesis with no supporting blob or person detection is '
-        'supported by the nearest compact scan segment within this distance (m) of its '
-        'prediction (a person\'s: one with a leg probability of at least segment_min_leg), '
-        'without gaining weight or samples: an object that stops stays tracked, with the '
-        'same id, as long as it stays in the scans, and a person the detector misses for a '
-        'few scans keeps the track. 0 = paper (it coasts and fades).', min=0.0, max=2.0)
+        0.5, 'A confirmed person\'s hypothesis with no supporting blob or person detection '
+        'is supported by the nearest compact scan segment with a leg probability of at '
+        'least segment_min_leg within this distance (m) of its prediction (another '
+        'object\'s: by a segment within stop_radius of it), without gaining weight or '
+        'samples: an object that stops stays tracked, with the same id, as long as it stays '
+        'in the scans, and a person the detector misses for a few scans keeps the track. '
+        '0 = paper (it coasts and fades).', min=0.0, max=2.0)
     segment_min_leg: float = param(
         0.1, 'Least leg probability of a segment that supports a person\'s track.',
         min=0.0, max=1.0)
@@ -390,6 +396,9 @@ class HypothesisTracker:
         spread = np.asarray(blobs.person_spread, dtype=float).reshape(-1)
         if spread.shape[0] != persons.shape[0]:
             spread = np.full(persons.shape[0], np.nan)
+        person_static = np.asarray(blobs.person_static, dtype=bool).reshape(-1)
+        if person_static.shape[0] == persons.shape[0]:
+            spread = np.where(person_static, np.nan, spread)   # clutter's "legs" do not swing
         segments, leg = _finite_rows(blobs.segments, blobs.segment_leg)
 
         hyp = self.hyp
@@ -418,8 +427,9 @@ class HypothesisTracker:
         dist = _distances(pred, xy)
         # Equation 2 on the predictions of the existing hypotheses.
         if b:
-            b_weight = 100.0 - np.maximum(c.blob_radius - dist / c.distance_unit,
-                                          0.0).sum(axis=0)
+            # (A stopped object held by the scans does not make the motion near it old.)
+            b_weight = 100.0 - np.maximum(c.blob_radius - dist[~hyp.stopped] /
+                                          c.distance_unit, 0.0).sum(axis=0)
             b_weight = np.clip(b_weight, 0.0, 100.0)
             new_blob = b_weight > c.new_blob_threshold
         else:
@@ -608,14 +618,17 @@ class HypothesisTracker:
 
     def _create_from_persons(self, persons, free, spread, t) -> HypothesisArrays:
         """A person detection that no hypothesis claims starts one: its velocity from the
-        nearest person detection of an earlier frame within reach, else zero."""
+        nearest person detection or motion blob of the most recent earlier frame within reach
+        (``creation_window``), else zero."""
         c = self.config
         prev = persons.copy()
         dt = np.ones(persons.shape[0])
         todo = np.ones(persons.shape[0], bool)
-        for age, earlier in self._earlier(t, 2):
+        frames = zip(self._earlier(t, 1), self._earlier(t, 2))
+        for (age, blobs_then), (_, persons_then) in frames:
             if not todo.any():
                 break
+            earlier = np.vstack((persons_then, blobs_then))
             if earlier.shape[0] == 0:
                 continue
             idx = np.flatnonzero(todo)
@@ -637,7 +650,7 @@ class HypothesisTracker:
         a person seen in space that was free before, or whose legs' separation has varied
         by ``gait_spread``, is walking (origin 2)."""
         c = self.config
-        d = np.hypot(*(persons - pred).T)
+        d = np.maximum(np.hypot(*(persons - pred).T) - c.person_tolerance, 0.0)
         state, P, position = self.filter.correct(hyp.state, hyp.P, hyp.t_state, persons, t)
         data = hyp.data
         data[:, _STATE] = state
@@ -668,11 +681,16 @@ class HypothesisTracker:
         out = np.full(rows.size, -1, np.intp)
         if c.segment_gate <= 0 or segments.shape[0] == 0 or rows.size == 0:
             return out
-        d = _distances(pred, segments)
         person = hyp.person_samples[rows] >= c.person_kind_samples
+        # A person (its legs are recognisable) is followed within segment_gate of its
+        # prediction; another object only where it last was (it stopped there), not onto
+        # clutter it passes.
+        d = np.where(person[:, None], _distances(pred, segments),
+                     _distances(hyp.position[rows], segments))
         d[person[:, None] & (leg[None, :] < c.segment_min_leg)] = np.inf
         near = d.argmin(axis=1)
-        ok = (d[np.arange(rows.size), near] <= c.segment_gate) & hyp.confirmed[rows]
+        gate = np.where(person, c.segment_gate, min(c.segment_gate, c.stop_radius))
+        ok = (d[np.arange(rows.size), near] <= gate) & hyp.confirmed[rows]
         out[ok] = near[ok]
         return out
 

@@ -56,6 +56,9 @@ from laser_tracker.core.stream import (BACKWARDS, DUPLICATE, FIRST, GAP, INVALID
 
 log = logging.getLogger(__name__)
 
+#: Scan points this close (m) to a motion blob do not join the static background.
+MOVER_RADIUS = 0.4
+
 
 # ------------------------------------------------------------------------------ ego-motion
 
@@ -321,6 +324,7 @@ class Detector:
         det = self._detect(scan, np.asarray(pose.pose, dtype=float), want_grids,
                            pose.quality)
         self._people_and_segments(scan, np.asarray(pose.pose, dtype=float), det)
+        self._add_to_background(np.asarray(pose.pose, dtype=float), float(scan.stamp), det)
         det.blobs.frame_id = pose.frame_id or self.frame_id
         det.blobs.stamp_ns = scan.stamp_ns
         det.blobs.restarted = bool(pose.quality.restarted)
@@ -336,7 +340,7 @@ class Detector:
             people = self.person_detector.detect(scan)
             b.persons = transform_points(pose, people.xy)
             b.person_confidence = people.confidence
-            b.person_free = self._walked_in(people, pose, float(scan.stamp))
+            b.person_free, b.person_static = self._walked_in(people, pose, float(scan.stamp))
             legs = people.legs
             pair = legs[:, 1] >= 0
             spread = np.full(people.count, np.nan)
@@ -355,30 +359,50 @@ class Detector:
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
 
-    def _walked_in(self, people, pose: np.ndarray, stamp: float) -> np.ndarray:
-        """Per person: were the places of all its legs seen FREE in an earlier grid, and are
-        they not static background? (Someone who walked in, not clutter that stood there.)"""
+    def _add_to_background(self, pose: np.ndarray, stamp: float, det: Detection) -> None:
+        """This scan's end points join the static background, except those of what moves
+        (within ``MOVER_RADIUS`` of a motion blob): people who keep passing the same spot (a
+        corridor) do not make it static."""
+        if self.background is None:
+            return
+        frame = self.history[0][0]
+        points = frame.points
+        b = det.blobs
+        movers = b.local()
+        if movers.shape[0] and points.shape[0]:
+            d = points[:, None, :] - movers[None, :, :]
+            near = (np.einsum('ijk,ijk->ij', d, d) <= MOVER_RADIUS ** 2).any(axis=1)
+            points = points[~near]
+        self.background.add(transform_points(pose, points), stamp)
+
+    def _walked_in(self, people, pose: np.ndarray, stamp: float):
+        """Per person: (free, static): were the places of all its legs seen FREE in an
+        earlier grid and are they not static background (someone who walked in), and are all
+        of them static background (where something has long stood)?"""
         n = people.count
-        history = list(self.history)[1:]          # [0] is this scan's own grid
-        if n == 0 or not history:
-            return np.zeros(n, bool)
         legs = people.legs
         used = np.unique(legs[legs >= 0])
-        if used.size == 0:
-            return np.zeros(n, bool)
-        res, cells = self.grid_config.resolution, self.builder.cells
+        if n == 0 or used.size == 0:
+            return np.zeros(n, bool), np.zeros(n, bool)
         xy = people.leg_xy[used]
-        ij = np.floor(xy / res + cells / 2.0)
-        inside = ((ij >= 0) & (ij < cells)).all(axis=1)
-        motions = [relative_motion(h[1], pose) for h in history]
-        seen = lookup_stack(self.builder.stack, [h[0].index for h in history], motions, res,
-                            np.clip(ij, 0, cells - 1))
-        free = (seen == FREE).any(axis=0) & inside
-        if self.background is not None:
-            free &= ~self.background.static(transform_points(pose, xy), stamp)
-        leg_free = np.ones(people.leg_xy.shape[0], bool)
-        leg_free[used] = free
-        return np.where(legs >= 0, leg_free[np.maximum(legs, 0)], True).all(axis=1)
+        static = self.background.static(transform_points(pose, xy), stamp) \
+            if self.background is not None else np.zeros(used.size, bool)
+        history = list(self.history)[1:]          # [0] is this scan's own grid
+        free = np.zeros(used.size, bool)
+        if history:
+            res, cells = self.grid_config.resolution, self.builder.cells
+            ij = np.floor(xy / res + cells / 2.0)
+            inside = ((ij >= 0) & (ij < cells)).all(axis=1)
+            motions = [relative_motion(h[1], pose) for h in history]
+            seen = lookup_stack(self.builder.stack, [h[0].index for h in history], motions,
+                                res, np.clip(ij, 0, cells - 1))
+            free = (seen == FREE).any(axis=0) & inside & ~static
+
+        def per_person(leg_value, missing):
+            value = np.full(people.leg_xy.shape[0], missing)
+            value[used] = leg_value
+            return np.where(legs >= 0, value[np.maximum(legs, 0)], missing).all(axis=1)
+        return per_person(free, True), per_person(static, True)
 
     def _detect(self, scan: Scan, pose: np.ndarray, want_grids: bool,
                 quality: PoseQuality) -> Detection:
@@ -391,8 +415,6 @@ class Detector:
         self.history.appendleft((frame, pose, float(scan.stamp)))
         previous = history[0][0] if history else None
         gated = not pose_trusted(quality, self.difference_config)
-        if (previous is None or gated) and self.background is not None:
-            self.background.add(transform_points(pose, frame.points), float(scan.stamp))
         if previous is None or gated:
             det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
                             gated=gated and previous is not None)
@@ -411,12 +433,10 @@ class Detector:
                                        self.builder.stack, res, cells,
                                        self.difference_config)
         background = self.background
-        if background is not None:
-            world = transform_points(pose, frame.points)
-            if changed.any():
-                rows = np.flatnonzero(changed)
-                changed[rows[background.static(world[rows], float(scan.stamp))]] = False
-            background.add(world, float(scan.stamp))
+        if background is not None and changed.any():
+            rows = np.flatnonzero(changed)
+            world = transform_points(pose, frame.points[rows])
+            changed[rows[background.static(world, float(scan.stamp))]] = False
         d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:
