@@ -267,3 +267,34 @@ def test_a_flickering_blob_still_creates_its_hypothesis_with_a_creation_window()
         return tr.stats['created']
     assert flicker(HypothesisConfig(creation_window=0.0)) == 0      # paper: previous frame
     assert flicker(HypothesisConfig(creation_window=0.3)) > 0
+
+
+def person_frame(t, xy, spread, free=False):
+    """A person detection alone (no motion blob) standing at ``xy`` with its legs
+    ``spread`` apart."""
+    b = frame(t)
+    b.persons = np.array([xy], dtype=float)
+    b.person_confidence = np.array([0.9])
+    b.person_free = np.array([free])
+    b.person_spread = np.array([spread])
+    b.person_static = np.array([False])
+    return b
+
+
+@pytest.mark.parametrize('gait_spread, confirmed', [(0.0, False), (0.1, True)])
+def test_swinging_legs_confirm_a_person_only_with_gait_spread(gait_spread, confirmed):
+    """A person detected where nothing walked in (no free space seen) and who stays within
+    person_min_travel is confirmed only by legs whose separation swings by gait_spread."""
+    cfg = HypothesisConfig(gait_spread=gait_spread)
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    for k in range(12):
+        tr.update(person_frame(k * DT, (2.0 + 0.02 * k, 0.0), 0.2 if k % 2 else 0.35))
+    assert len(tr.hyp) == 1
+    assert bool(tr.hyp.confirmed[0]) is confirmed
+
+
+def test_legs_that_keep_their_separation_confirm_no_person_even_with_gait_spread():
+    tr = HypothesisTracker(HypothesisConfig(gait_spread=0.1), KalmanConfig())
+    for k in range(12):
+        tr.update(person_frame(k * DT, (2.0, 0.0), 0.3))
+    assert len(tr.hyp) == 1 and not tr.hyp.confirmed[0]
