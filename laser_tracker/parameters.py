@@ -111,6 +111,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.ride_along_speed': 0.0,  # no ride-along test
         'hypotheses.segment_gate': 0.0,    # a hypothesis without a blob coasts and fades
         'hypotheses.person_min_travel': 0.0,
+        'hypotheses.person_confirm_samples': 0,
     },
 }
 

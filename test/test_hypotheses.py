@@ -285,7 +285,7 @@ def person_frame(t, xy, spread, free=False):
 def test_swinging_legs_confirm_a_person_only_with_gait_spread(gait_spread, confirmed):
     """A person detected where nothing walked in (no free space seen) and who stays within
     person_min_travel is confirmed only by legs whose separation swings by gait_spread."""
-    cfg = HypothesisConfig(gait_spread=gait_spread)
+    cfg = HypothesisConfig(gait_spread=gait_spread, person_confirm_samples=0)
     tr = HypothesisTracker(cfg, KalmanConfig())
     for k in range(12):
         tr.update(person_frame(k * DT, (2.0 + 0.02 * k, 0.0), 0.2 if k % 2 else 0.35))
@@ -294,7 +294,24 @@ def test_swinging_legs_confirm_a_person_only_with_gait_spread(gait_spread, confi
 
 
 def test_legs_that_keep_their_separation_confirm_no_person_even_with_gait_spread():
-    tr = HypothesisTracker(HypothesisConfig(gait_spread=0.1), KalmanConfig())
+    cfg = HypothesisConfig(gait_spread=0.1, person_confirm_samples=0)
+    tr = HypothesisTracker(cfg, KalmanConfig())
     for k in range(12):
         tr.update(person_frame(k * DT, (2.0, 0.0), 0.3))
     assert len(tr.hyp) == 1 and not tr.hyp.confirmed[0]
+
+
+@pytest.mark.parametrize('confirm_samples', [0, 30])
+def test_a_person_detected_long_enough_is_confirmed_without_walking(confirm_samples):
+    """A person who stands in view from the start (never seen walking in, never travelling
+    person_min_travel) is confirmed after person_confirm_samples supporting detections, not
+    before; with 0 never."""
+    cfg = HypothesisConfig(gait_spread=0.0, person_confirm_samples=confirm_samples)
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    confirmed_at = None
+    for k in range(45):
+        tr.update(person_frame(k * DT, (2.0, 0.01 * (k % 2)), 0.3))
+        if confirmed_at is None and len(tr.hyp) and tr.hyp.confirmed.any():
+            confirmed_at = int(tr.hyp.person_samples[0])
+    assert len(tr.hyp) == 1
+    assert confirmed_at == (confirm_samples or None)

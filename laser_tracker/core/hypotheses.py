@@ -151,6 +151,12 @@ class HypothesisConfig:
         'or once it has moved this far (m) from where it started: clutter that looks like '
         'legs (chair and table legs) stands where the scans have always seen something. '
         '0 = no such condition.', min=0.0, max=10.0)
+    person_confirm_samples: int = param(
+        30, 'A hypothesis started by a person detection is also confirmed once this many '
+        'person detections have supported it, though it was never seen walking: a person '
+        'who stands in view from the start (in front of a robot that follows them). Chair '
+        'and table legs rarely stay detected that long from a moving robot. 0 = off.',
+        min=0, max=100000)
     gait_spread: float = param(
         0.0, 'A person whose two legs\' separation has varied by this much (m), off static '
         'background, is walking (the legs swing; chair or table legs keep their distance): '
@@ -495,7 +501,10 @@ class HypothesisTracker:
         ready = hyp.samples >= c.confirm_samples
         if c.person_min_travel > 0:
             travel2 = ((hyp.position - hyp.start) ** 2).sum(axis=1)
-            ready &= (hyp.origin != 1) | (travel2 >= c.person_min_travel ** 2)
+            walked = (hyp.origin != 1) | (travel2 >= c.person_min_travel ** 2)
+            if c.person_confirm_samples > 0:
+                walked |= hyp.person_samples >= c.person_confirm_samples
+            ready &= walked
         if c.ride_along_speed > 0:
             ready &= ~self._riding_along(hyp, blobs, t)
         if c.confirm_min_speed > 0:
