@@ -315,3 +315,39 @@ def test_a_person_detected_long_enough_is_confirmed_without_walking(confirm_samp
             confirmed_at = int(tr.hyp.person_samples[0])
     assert len(tr.hyp) == 1
     assert confirmed_at == (confirm_samples or None)
+
+
+def lose_and_find(cfg, speed=0.5, hidden=4, frames=20):
+    """A blob walks at ``speed`` m/s, is confirmed, is hidden for ``hidden`` frames (its
+    hypothesis fades and is removed), then walks on: the ids of the confirmed tracks before
+    and after."""
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    before, after = set(), set()
+    for k in range(frames):
+        t = k * DT
+        seen = not (8 <= k < 8 + hidden)
+        res = tr.update(frame(t, (1.0 + speed * t, 0.0)) if seen else frame(t))
+        h = res.hypotheses
+        ids = set(h.track_id[h.confirmed].tolist())
+        if k < 8:
+            before |= ids
+        elif not seen:
+            assert not ids or ids == before     # the lost track coasts, then is removed
+        else:
+            after |= ids
+    assert len(tr.hyp) <= 2
+    return before, after
+
+
+def test_a_track_lost_for_a_moment_resumes_its_id():
+    cfg = HypothesisConfig(resume_time=2.0, resume_radius=1.0)
+    before, after = lose_and_find(cfg)
+    assert len(before) == 1 and after == before
+
+
+@pytest.mark.parametrize('change', [{'resume_time': 0.0}, {'resume_radius': 0.3},
+                                    {'resume_time': 0.5}])
+def test_a_track_found_too_late_or_too_far_gets_a_new_id(change):
+    cfg = HypothesisConfig(**{'resume_time': 2.0, 'resume_radius': 1.0, **change})
+    before, after = lose_and_find(cfg)
+    assert len(before) == 1 and len(after) == 1 and after != before

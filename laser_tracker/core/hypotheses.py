@@ -180,6 +180,14 @@ class HypothesisConfig:
     stop_radius: float = param(
         0.15, 'A supporting segment within this distance (m) of the track\'s position means '
         'the object stands: its velocity is measured as zero.', min=0.0, max=2.0)
+    resume_time: float = param(
+        2.0, 'A hypothesis confirmed within this time (s) of the loss of a confirmed track of '
+        'the same kind, within resume_radius of where that track was last seen, takes its '
+        'id: a target lost for a moment (missed, hidden) keeps its identity. 0 = off.',
+        min=0.0, max=60.0)
+    resume_radius: float = param(
+        1.0, 'Largest distance (m) between a lost track\'s last position and a newly '
+        'confirmed hypothesis that resumes it (resume_time).', min=0.0, max=10.0)
     max_gap: float = param(2.0, 'A gap between frames longer than this (s) drops every '
                            'hypothesis (predictions are meaningless).', min=0.01, max=3600.0)
 
@@ -314,7 +322,7 @@ class HypothesisTracker:
         self.filter = TrackFilter(kalman or KalmanConfig())
         self.next_id = 1
         self.stats = {'created': 0, 'confirmed': 0, 'splits': 0, 'merged': 0,
-                      'bound_hits': 0, 'resets': 0, 'blobs_dropped': 0}
+                      'bound_hits': 0, 'resets': 0, 'blobs_dropped': 0, 'resumed': 0}
         self._bound_active = False
         self.reset()
 
@@ -330,6 +338,8 @@ class HypothesisTracker:
         # Earlier frames for creation (newest last): (stamp, motion blobs, persons).
         self.recent: deque = deque(maxlen=64)
         self.prev_origin: np.ndarray | None = None
+        # Confirmed tracks lost recently (resume_time): id, stamp, x, y, is a person.
+        self.lost = np.zeros((0, 5))
 
     def report(self, stamp: float) -> Tracks:
         """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated)."""
@@ -486,6 +496,8 @@ class HypothesisTracker:
         hyp, was_confirmed = self._merge(hyp, was_confirmed)
         keep = hyp.weight >= c.remove_below
         if not keep.all():
+            if c.resume_time > 0:
+                self._remember_lost(hyp.take(~keep & hyp.confirmed), t)
             hyp, was_confirmed = hyp.take(keep), was_confirmed[keep]
         bounded = len(hyp) > c.max_hypotheses
         if bounded:
@@ -513,12 +525,49 @@ class HypothesisTracker:
             ready &= ((hyp.position - hyp.start) ** 2).sum(axis=1) >= c.confirm_min_travel ** 2
         hyp.confirmed = hyp.confirmed | ready
         newly = np.flatnonzero(hyp.confirmed & ~was_confirmed)
+        if c.resume_time > 0 and newly.size and len(self.lost):
+            self._resume(hyp, newly, t)
         self.stats['confirmed'] += int(newly.size)
         self.hyp = hyp
         self.prev_xy, self.prev_stamp = xy, t
         self.recent.append((t, xy, persons))
         self.prev_origin = np.asarray(blobs.origin, dtype=float)[:2]
         return self._result(t, newly, created, bounded)
+
+    def _remember_lost(self, gone: HypothesisArrays, t: float) -> None:
+        """Keep the confirmed tracks just removed for ``resume_time``."""
+        c = self.config
+        fresh = self.lost[self.lost[:, 1] >= t - c.resume_time] if len(self.lost) else \
+            self.lost
+        if len(gone):
+            rows = np.column_stack((gone.track_id, np.full(len(gone), t), gone.position,
+                                    gone.person_samples >= c.person_kind_samples))
+            fresh = np.vstack((fresh, rows))
+        self.lost = fresh[-c.max_hypotheses:]
+
+    def _resume(self, hyp: HypothesisArrays, newly: np.ndarray, t: float) -> None:
+        """Newly confirmed hypotheses near a recently lost track of their kind take its id
+        (nearest pairs first, each lost track once)."""
+        c = self.config
+        lost = self.lost[self.lost[:, 1] >= t - c.resume_time]
+        if not len(lost):
+            self.lost = lost
+            return
+        person = hyp.person_samples[newly] >= c.person_kind_samples
+        d = _distances(hyp.position[newly], lost[:, 2:4])
+        d[person[:, None] != (lost[None, :, 4] > 0.5)] = np.inf
+        taken = np.zeros(len(lost), bool)
+        done = np.zeros(len(newly), bool)
+        for flat in np.argsort(d, axis=None):
+            i, j = divmod(int(flat), len(lost))
+            if d[i, j] > c.resume_radius:
+                break
+            if taken[j] or done[i]:
+                continue
+            taken[j] = done[i] = True
+            hyp.data[newly[i], _ID] = lost[j, 0]
+            self.stats['resumed'] += 1
+        self.lost = lost[~taken]
 
     def _riding_along(self, hyp: HypothesisArrays, blobs: Blobs, t: float) -> np.ndarray:
         """Mask: hypotheses (not persons) moving with the scanner (``ride_along_speed``)."""
