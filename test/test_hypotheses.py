@@ -351,3 +351,19 @@ def test_a_track_found_too_late_or_too_far_gets_a_new_id(change):
     cfg = HypothesisConfig(**{'resume_time': 2.0, 'resume_radius': 1.0, **change})
     before, after = lose_and_find(cfg)
     assert len(before) == 1 and len(after) == 1 and after != before
+
+
+@pytest.mark.parametrize('leg, keeps', [(0.05, True), (0.01, False)])
+def test_a_person_missed_by_the_detector_is_held_by_a_leg_like_segment(leg, keeps):
+    """A confirmed person whom the detector stops seeing keeps the track on the nearest
+    segment whose leg probability reaches segment_min_leg, and loses it on one below."""
+    cfg = HypothesisConfig(segment_gate=0.5, segment_min_leg=0.02)
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    for k in range(8):
+        r = tr.update(people(k * DT, (2.0, 1.0)))
+    (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
+    for k in range(8, 20):
+        b = people(k * DT, segments=[(2.05, 1.0)])
+        b.segment_leg = np.array([leg])
+        r = tr.update(b)
+    assert (tid in r.hypotheses.track_id.tolist()) is keeps

@@ -175,8 +175,9 @@ class HypothesisConfig:
         'in the scans, and a person the detector misses for a few scans keeps the track. '
         '0 = paper (it coasts and fades).', min=0.0, max=2.0)
     segment_min_leg: float = param(
-        0.1, 'Least leg probability of a segment that supports a person\'s track.',
-        min=0.0, max=1.0)
+        0.02, 'Least leg probability of a segment that supports a person\'s track: low, '
+        'since it only keeps a confirmed person (legs seen edge-on, merged with clutter or '
+        'half hidden score low); 0 = any compact segment.', min=0.0, max=1.0)
     stop_radius: float = param(
         0.15, 'A supporting segment within this distance (m) of the track\'s position means '
         'the object stands: its velocity is measured as zero.', min=0.0, max=2.0)
