@@ -133,8 +133,10 @@ class HypothesisConfig:
         0.2, 'The scanner speed (m/s) from which ride_along_speed applies.', min=0.0,
         max=10.0)
     person_gate: float = param(
-        0.6, 'A person detection (legs) within this distance (m) of a prediction supports '
-        'that hypothesis (each hypothesis takes its nearest).', min=0.01, max=5.0)
+        0.5, 'A person detection (legs) within this distance (m) of a prediction supports '
+        'that hypothesis (each hypothesis takes its nearest). Wider keeps a person whose '
+        'predictions are poor (no odometry) a little better, but lets leg-like clutter '
+        'support hypotheses on static structure.', min=0.01, max=5.0)
     person_radius: float = param(
         0.45, 'Motion blobs within this distance (m) of a person detection are that '
         'person (their legs): they neither split nor create hypotheses.', min=0.0, max=5.0)
