@@ -12,6 +12,10 @@ context starts), or use the :func:`ros_context` fixture, which also gives each t
 from __future__ import annotations
 
 import os
+import shutil
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -45,3 +49,20 @@ def ros_context():
         yield context
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def installed_executable(name: str) -> str:
+    """The path of the package's executable ``name`` beside this Python, or skip the test."""
+    exe = shutil.which(name, path=str(Path(sys.executable).parent))
+    if exe is None:
+        pytest.skip(f'{name} is not installed in this environment (pip install -e .)')
+    return exe
+
+
+def spin_until(executor, predicate, timeout: float = 5.0) -> None:
+    """Spin ``executor`` until ``predicate()`` holds; fail after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError('timed out waiting for the node graph')
+        executor.spin_once(timeout_sec=0.05)

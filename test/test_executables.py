@@ -1,17 +1,15 @@
 """Every node executable starts with the committed parameter file and stops cleanly on Ctrl-C
 (what `ros2 run laser_tracker <node> --ros-args --params-file ...` does on a robot)."""
 import os
-import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from ros_env import isolate_ros_env
+from ros_env import installed_executable, isolate_ros_env
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ROOT / 'config' / 'laser_tracker.yaml'
@@ -20,9 +18,7 @@ NODES = ['ego_motion', 'detection', 'tracking', 'active_head', 'laser_tracker_al
 
 @pytest.mark.parametrize('node', NODES)
 def test_node_executable_starts_and_stops_on_sigint(node, tmp_path):
-    exe = shutil.which(node, path=str(Path(sys.executable).parent))
-    if exe is None:
-        pytest.skip(f'{node} is not installed in this environment (pip install -e .)')
+    exe = installed_executable(node)
     isolate_ros_env()
     args = [exe, '--ros-args', '--params-file', str(PARAMS)]
     proc = subprocess.Popen(args, env=dict(os.environ), stdout=subprocess.PIPE,
@@ -48,10 +44,7 @@ class Driver:
     loaded machine, and a Ctrl-C before the node runs ends it before it says anything)."""
 
     def __init__(self, *params: str):
-        exe = shutil.which('sick_lms_driver', path=str(Path(sys.executable).parent))
-        if exe is None:
-            pytest.skip('sick_lms_driver is not installed in this environment '
-                        '(pip install -e .)')
+        exe = installed_executable('sick_lms_driver')
         isolate_ros_env()
         args = [exe, '--ros-args', '--params-file', str(PARAMS)]
         for p in params:
@@ -86,6 +79,12 @@ class Driver:
         self._reader.join(5.0)
         return took
 
+    def assert_stops_on_sigint(self) -> None:
+        """Ctrl-C ends the driver cleanly (status 0, no traceback) within 2 s."""
+        took = self.interrupt()
+        assert self.proc.returncode == 0 and 'Traceback' not in self.output, self.output
+        assert took < 2.0, (took, self.output)
+
     def kill(self) -> None:
         if self.proc.poll() is None:
             self.proc.kill()
@@ -117,9 +116,7 @@ def test_sick_driver_without_a_scanner_keeps_retrying_and_stops_on_sigint(tmp_pa
         assert 'no-such-port' in driver.output and 'retrying' in driver.output
         time.sleep(1.0)
         assert driver.proc.poll() is None, driver.output
-        took = driver.interrupt()
-        assert driver.proc.returncode == 0 and 'Traceback' not in driver.output, driver.output
-        assert took < 2.0, (took, driver.output)
+        driver.assert_stops_on_sigint()
     finally:
         driver.kill()
 
@@ -134,9 +131,7 @@ def test_sick_driver_streams_and_stops_the_device_output_on_sigint(tmp_path):
         assert driver.wait_for('streaming at 500000 baud'), driver.output
         assert wait_for(lambda: sim.counters.scans_sent >= 20, timeout=10.0)
         assert driver.proc.poll() is None and sim.device.streaming
-        took = driver.interrupt()
-        assert driver.proc.returncode == 0 and 'Traceback' not in driver.output, driver.output
-        assert took < 2.0, (took, driver.output)
+        driver.assert_stops_on_sigint()
         assert not sim.device.streaming  # it stopped the device's output before leaving
     finally:
         driver.kill()
@@ -149,9 +144,7 @@ def test_sick_driver_waiting_for_a_silent_device_stops_at_once_on_sigint(silent_
         assert driver.wait_for('autostart: waiting'), driver.output
         time.sleep(1.0)
         assert driver.proc.poll() is None, driver.output
-        took = driver.interrupt()
-        assert driver.proc.returncode == 0 and 'Traceback' not in driver.output, driver.output
-        assert took < 2.0, (took, driver.output)
+        driver.assert_stops_on_sigint()
     finally:
         driver.kill()
 
@@ -178,9 +171,7 @@ def test_sick_driver_sigint_interrupts_a_configure_in_progress(silent_port, ros_
         assert 'configuring' in driver.output, driver.output
         time.sleep(0.5)  # inside configure: the rate search takes seconds
         assert driver.proc.poll() is None
-        took = driver.interrupt()
-        assert driver.proc.returncode == 0 and 'Traceback' not in driver.output, driver.output
-        assert took < 2.0, (took, driver.output)
+        driver.assert_stops_on_sigint()
     finally:
         node.destroy_node()
         driver.kill()

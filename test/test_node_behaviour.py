@@ -10,25 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ros_env import spin_until
+from test_stages import ring_scan
+
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'exp1_stationary_single_walker'
 
 
 def _scan_msg(stamp: float, mover_y: float | None = None):
     from laser_tracker.conversions import ros_factory, scan_to_msg
-    from laser_tracker.core.scan import Scan
-
-    angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
-    r = np.full(angles.size, 4.0)
-    if mover_y is not None:
-        c = np.array([2.0, mover_y])
-        d = np.column_stack((np.cos(angles), np.sin(angles)))
-        b = d @ c
-        disc = b * b - (c @ c - 0.15 ** 2)
-        r = np.where((disc > 0) & (b > 0), np.minimum(r, b - np.sqrt(np.maximum(disc, 0))), r)
-    return scan_to_msg(ros_factory(), Scan(stamp=stamp, ranges=r, angle_min=-math.pi / 2,
-                                           angle_increment=math.pi / 360, range_min=0.05,
-                                           range_max=8.0))
+    return scan_to_msg(ros_factory(), ring_scan(stamp, mover_y))
 
 
 class Graph:
@@ -76,11 +67,7 @@ class Graph:
         self.spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs), timeout)
 
     def spin_until(self, predicate, timeout=5.0):
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            if time.monotonic() > deadline:
-                raise AssertionError('timed out waiting for the node graph')
-            self.executor.spin_once(timeout_sec=0.05)
+        spin_until(self.executor, predicate, timeout)
 
     def spin(self, seconds=0.3):
         deadline = time.monotonic() + seconds
@@ -122,8 +109,6 @@ def walk(graph, start, n, dt=0.2):
 
 
 def test_live_parameters_take_effect_from_the_next_message(graph):
-    from visualization_msgs.msg import MarkerArray  # noqa: F401
-
     # tracking: the paper's m = 4 confirms the walker; 1000 samples confirms nothing.
     walk(graph, 1.0, 10)
     assert any(_confirmed(a) for a in graph.got['tracks'])

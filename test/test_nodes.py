@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ros_env import spin_until
+
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'exp1_stationary_single_walker'
@@ -87,11 +89,7 @@ class _Graph:
         raise AssertionError(f'no subscriber on {missing}')
 
     def spin_until(self, predicate, timeout=5.0):
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            if time.monotonic() > deadline:
-                raise AssertionError('timed out waiting for the node graph')
-            self.executor.spin_once(timeout_sec=0.05)
+        spin_until(self.executor, predicate, timeout)
 
     def close(self):
         self.executor.shutdown()

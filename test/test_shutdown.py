@@ -8,17 +8,15 @@ from __future__ import annotations
 
 import os
 import random
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 
-from ros_env import isolate_ros_env
+from ros_env import installed_executable, isolate_ros_env
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ROOT / 'config' / 'laser_tracker.yaml'
@@ -65,9 +63,7 @@ def _wait_for_handlers(proc, timeout=30.0) -> None:
 
 @pytest.mark.parametrize('node', NODES)
 def test_ctrl_c_stops_the_node_within_two_seconds_every_time(node, tmp_path):
-    exe = shutil.which(node, path=str(Path(sys.executable).parent))
-    if exe is None:
-        pytest.skip(f'{node} is not installed in this environment (pip install -e .)')
+    exe = installed_executable(node)
     isolate_ros_env()
     rng = random.Random(node)                       # the same moments on every run
     delays = [rng.uniform(0.0, 2.5) for _ in range(REPEATS)]

@@ -540,8 +540,7 @@ class HypothesisTracker:
     def _remember_lost(self, gone: HypothesisArrays, t: float) -> None:
         """Keep the confirmed tracks just removed for ``resume_time``."""
         c = self.config
-        fresh = self.lost[self.lost[:, 1] >= t - c.resume_time] if len(self.lost) else \
-            self.lost
+        fresh = self.lost[self.lost[:, 1] >= t - c.resume_time]
         if len(gone):
             rows = np.column_stack((gone.track_id, np.full(len(gone), t), gone.position,
                                     gone.person_samples >= c.person_kind_samples))

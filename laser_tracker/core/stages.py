@@ -51,8 +51,8 @@ from laser_tracker.core.kalman import KalmanConfig
 from laser_tracker.core.person_detector import (DetectorModelError, PersonDetector,
                                                 PersonDetectorConfig)
 from laser_tracker.core.scan import Scan
-from laser_tracker.core.stream import (BACKWARDS, DUPLICATE, FIRST, GAP, INVALID, EventLog,
-                                       OdometryWait, StreamRules)
+from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, EventLog, OdometryWait,
+                                       StreamRules)
 
 log = logging.getLogger(__name__)
 
@@ -171,10 +171,9 @@ class EgoMotion:
     def update(self, scan: Scan) -> StampedPose | None:
         """The pose of ``scan``, or None (``skipped`` says why)."""
         self.skipped = None
-        verdict = self.rules.classify(scan.stamp)
-        if verdict in (INVALID, DUPLICATE):
+        verdict = self.rules.screen(scan.stamp, 'scan', self.events)
+        if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
-            self.events.note(f'scan skipped: {verdict} stamp', f't={scan.stamp!r}')
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
@@ -305,10 +304,9 @@ class Detector:
         built and kept as history as usual but no change is reported.
         """
         self.skipped = None
-        verdict = self.rules.classify(scan.stamp)
-        if verdict in (INVALID, DUPLICATE):
+        verdict = self.rules.screen(scan.stamp, 'scan', self.events)
+        if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
-            self.events.note(f'scan skipped: {verdict} stamp', f't={scan.stamp!r}')
             return None
         if verdict == BACKWARDS:
             self.events.note('restart', 'time went backwards')
@@ -505,10 +503,9 @@ class Tracker:
 
     def update(self, blobs: Blobs) -> FrameResult | None:
         self.skipped = None
-        verdict = self.rules.classify(float(blobs.stamp))
-        if verdict in (INVALID, DUPLICATE):
+        verdict = self.rules.screen(float(blobs.stamp), 'blobs', self.events)
+        if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
-            self.events.note(f'blobs skipped: {verdict} stamp', f't={blobs.stamp!r}')
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {blobs.stamp:.3f} s)')
@@ -562,9 +559,8 @@ class Head:
 
     def update(self, stamp: float, tracks) -> HeadCommand | None:
         """``tracks``: (id, x, y, vx, vy, weight) rows of confirmed tracks, odometry frame."""
-        verdict = self.rules.classify(stamp)
-        if verdict in (INVALID, DUPLICATE):
-            self.events.note(f'tracks skipped: {verdict} stamp', f't={stamp!r}')
+        verdict = self.rules.screen(stamp, 'tracks', self.events)
+        if verdict in SKIPPED:
             return None
         if verdict == BACKWARDS:
             self.reset('time went backwards')

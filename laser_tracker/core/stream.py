@@ -31,6 +31,7 @@ T = TypeVar('T')
 
 FIRST, NEXT, DUPLICATE, BACKWARDS, GAP, INVALID = (
     'first', 'next', 'duplicate', 'backwards', 'gap', 'invalid')
+SKIPPED = (INVALID, DUPLICATE)     # verdicts whose item a stage drops
 
 
 class EventLog:
@@ -83,6 +84,14 @@ class StreamRules:
         if stamp - self.last > self.max_gap:
             return GAP
         return NEXT
+
+    def screen(self, stamp: float, item: str, events: EventLog) -> str:
+        """``classify(stamp)``; a verdict in SKIPPED is noted in ``events`` as '<item>
+        skipped: ...' (the caller drops the item)."""
+        verdict = self.classify(stamp)
+        if verdict in SKIPPED:
+            events.note(f'{item} skipped: {verdict} stamp', f't={stamp!r}')
+        return verdict
 
     def accept(self, stamp: float) -> None:
         self.last = float(stamp)

@@ -33,7 +33,20 @@ MIRROR_HZ = 75.0
 
 
 @dataclass(frozen=True)
-class LidarConfig:
+class ScannerMount:
+    """Where a simulated scanner sits on the platform, and its frame (both scanner models)."""
+
+    mount_x: float = param(0.0, 'Scanner position on the platform, forward (m).',
+                           min=-2.0, max=2.0)
+    mount_y: float = param(0.0, 'Scanner position on the platform, left (m).',
+                           min=-2.0, max=2.0)
+    mount_yaw: float = param(0.0, 'Scanner yaw on the platform (rad).', min=-math.pi,
+                             max=math.pi)
+    frame_id: str = param('laser', 'Frame of the scans.')
+
+
+@dataclass(frozen=True)
+class LidarConfig(ScannerMount):
     """The simulated SICK LMS (section ``sim.lidar``)."""
 
     fov_deg: float = param(180.0, 'Field of view (deg), centred on the x axis.',
@@ -53,13 +66,6 @@ class LidarConfig:
                                 'paper: 143 scans in 30 s).', min=0.1, max=MIRROR_HZ)
     receive_delay: float = param(0.19, 'Time from the first beam to the scan reaching the host '
                                  '(s): 732 bytes at 38,400 baud.', min=0.0, max=1.0)
-    mount_x: float = param(0.0, 'Scanner position on the platform, forward (m).',
-                           min=-2.0, max=2.0)
-    mount_y: float = param(0.0, 'Scanner position on the platform, left (m).',
-                           min=-2.0, max=2.0)
-    mount_yaw: float = param(0.0, 'Scanner yaw on the platform (rad).', min=-math.pi,
-                             max=math.pi)
-    frame_id: str = param('laser', 'Frame of the scans.')
 
 
 class Lidar:
@@ -112,7 +118,7 @@ class Lidar:
 
 # ---------------------------------------------------------------------------------- Hokuyo
 @dataclass(frozen=True)
-class HokuyoConfig:
+class HokuyoConfig(ScannerMount):
     """A simulated Hokuyo-class scanner (section ``sim.hokuyo``), as in the real robots'
     recordings: 768 beams of 2 pi / 1024 rad over 270 deg, 11 m, 1 mm unit.
 
@@ -153,13 +159,6 @@ class HokuyoConfig:
     receive_delay: float = param(0.07, 'Time from the first beam to the scan reaching the host '
                                  '(s): the rest of the revolution and the USB transfer.',
                                  min=0.0, max=1.0)
-    mount_x: float = param(0.0, 'Scanner position on the platform, forward (m).',
-                           min=-2.0, max=2.0)
-    mount_y: float = param(0.0, 'Scanner position on the platform, left (m).',
-                           min=-2.0, max=2.0)
-    mount_yaw: float = param(0.0, 'Scanner yaw on the platform (rad).', min=-math.pi,
-                             max=math.pi)
-    frame_id: str = param('laser', 'Frame of the scans.')
 
 
 class Hokuyo:
