@@ -367,3 +367,43 @@ def test_a_person_missed_by_the_detector_is_held_by_a_leg_like_segment(leg, keep
         b.segment_leg = np.array([leg])
         r = tr.update(b)
     assert (tid in r.hypotheses.track_id.tolist()) is keeps
+
+
+@pytest.mark.parametrize('blob_gate, keeps', [(0.5, True), (0.0, False)])
+def test_a_standing_person_is_not_pulled_off_by_a_blob_beyond_person_blob_gate(blob_gate,
+                                                                                 keeps):
+    """A scan where the detector misses a standing person but a motion blob 0.6 m away
+    (someone else) lies within the paper's gate: with person_blob_gate the track stays on
+    the person (held by its segment) and keeps its id; without, the blob pulls it off and
+    the person is found again as a new hypothesis."""
+    tr = HypothesisTracker(HypothesisConfig(person_blob_gate=blob_gate), KalmanConfig())
+    for k in range(12):
+        if k == 8:
+            b = people(k * DT, segments=[(2.0, 1.0)], blobs_xy=[(2.6, 1.0)])
+            b.segment_leg = np.array([0.5])
+        else:
+            b = people(k * DT, (2.0, 1.0))
+        r = tr.update(b)
+        if k == 7:
+            (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
+    h = r.hypotheses
+    held = h.confirmed & (h.track_id == tid)
+    assert bool(held.any()) is keeps
+    if keeps:
+        assert np.allclose(h.position[held], (2.0, 1.0), atol=0.05)
+
+
+@pytest.mark.parametrize('radius, ids', [(0.3, {1}), (0.0, {1, 2})])
+def test_a_duplicate_converging_on_a_confirmed_track_is_not_confirmed(radius, ids):
+    """A detection 0.6 m beside a standing person starts a second hypothesis; both then
+    follow the same detections, with velocities too different to merge at once. With
+    duplicate_radius the duplicate is never reported as confirmed (it merges a frame
+    later); without, a second id shows for one frame."""
+    tr = HypothesisTracker(HypothesisConfig(duplicate_radius=radius), KalmanConfig())
+    seen = set()
+    for k in range(16):
+        dets = [(2.0, 1.0)] if k < 8 else [(2.0, 1.0), (2.6, 1.0)] if k == 8 else [(2.3, 1.0)]
+        h = tr.update(people(k * DT, *dets)).hypotheses
+        seen |= set(h.track_id[h.confirmed].tolist())
+    assert seen == ids
+    assert len(h) == 1 and h.confirmed[0] and h.track_id[0] == 1

@@ -191,6 +191,15 @@ class HypothesisConfig:
     resume_radius: float = param(
         1.0, 'Largest distance (m) between a lost track\'s last position and a newly '
         'confirmed hypothesis that resumes it (resume_time).', min=0.0, max=10.0)
+    duplicate_radius: float = param(
+        0.3, 'A hypothesis within this distance (m) of a confirmed track is not confirmed: '
+        'it duplicates that track (the two follow the same legs) and merges into it, so '
+        'confirming it would show a new id for one frame. 0 = paper.', min=0.0, max=5.0)
+    person_blob_gate: float = param(
+        0.5, 'A person\'s track takes motion blobs only within this distance (m) of its '
+        'prediction (its legs), not at the paper\'s gate: a blob farther away is someone '
+        'or something else, and would pull the track off a person who stands. 0 = gate.',
+        min=0.0, max=5.0)
     max_gap: float = param(2.0, 'A gap between frames longer than this (s) drops every '
                            'hypothesis (predictions are meaningless).', min=0.01, max=3600.0)
 
@@ -465,6 +474,9 @@ class HypothesisTracker:
                                               spread[person_of[rows]], t))
         # Gating, splitting and Equation 3 for the others.
         gate = (dist <= c.gate) & ~by_person[:, None]
+        if c.person_blob_gate > 0 and k and b:
+            person_kind = hyp.person_samples >= c.person_kind_samples
+            gate[person_kind] &= dist[person_kind] <= c.person_blob_gate
         hi, bi = np.nonzero(gate)
         if hi.size:
             parts.append(self._support(hyp, pred, dist, hi, bi, xy, structure, t))
@@ -526,6 +538,8 @@ class HypothesisTracker:
             ready &= (hyp.velocity ** 2).sum(axis=1) >= c.confirm_min_speed ** 2
         if c.confirm_min_travel > 0:
             ready &= ((hyp.position - hyp.start) ** 2).sum(axis=1) >= c.confirm_min_travel ** 2
+        if c.duplicate_radius > 0 and ready.any() and hyp.confirmed.any():
+            ready &= ~self._on_confirmed(hyp)
         hyp.confirmed = hyp.confirmed | ready
         newly = np.flatnonzero(hyp.confirmed & ~was_confirmed)
         if c.resume_time > 0 and newly.size and len(self.lost):
@@ -546,6 +560,12 @@ class HypothesisTracker:
                                     gone.person_samples >= c.person_kind_samples))
             fresh = np.vstack((fresh, rows))
         self.lost = fresh[-c.max_hypotheses:]
+
+    def _on_confirmed(self, hyp: HypothesisArrays) -> np.ndarray:
+        """Mask: unconfirmed hypotheses within duplicate_radius of a confirmed one."""
+        confirmed = hyp.position[hyp.confirmed]
+        near = (_distances(hyp.position, confirmed) <= self.config.duplicate_radius).any(axis=1)
+        return near & ~hyp.confirmed
 
     def _resume(self, hyp: HypothesisArrays, newly: np.ndarray, t: float) -> None:
         """Newly confirmed hypotheses near a recently lost track of their kind take its id
