@@ -48,6 +48,14 @@ def between(a, b) -> np.ndarray:
     return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_scalar(b[2] - a[2])])
 
 
+def pairwise_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Euclidean distances (len(a), len(b)) between two sets of 2D points."""
+    if a.shape[0] == 0 or b.shape[0] == 0:
+        return np.zeros((a.shape[0], b.shape[0]))
+    d = a[:, None, :] - b[None, :, :]
+    return np.sqrt(np.einsum('ijk,ijk->ij', d, d))
+
+
 def transform_points(pose, points: np.ndarray) -> np.ndarray:
     """Points (N, 2) in the frame of ``pose`` expressed in its parent frame."""
     x, y, t = pose

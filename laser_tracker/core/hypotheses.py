@@ -55,6 +55,7 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core.blobs import Blobs
+from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.kalman import TrackFilter, KalmanConfig
 
 log = logging.getLogger(__name__)
@@ -362,7 +363,7 @@ class HypothesisTracker:
                       covariance=self.filter.position_covariance(h.P, h.t_state, stamp),
                       weight=h.weight.copy(), samples=h.samples, confirmed=h.confirmed,
                       moving=(speed2 >= self.config.moving_speed ** 2) & ~h.stopped,
-                      kind=np.where(h.person_samples >= self.config.person_kind_samples,
+                      kind=np.where(self._is_person(h),
                                     'person', 'object').astype(object))
 
     def reconfigure(self, config: HypothesisConfig, kalman: KalmanConfig) -> bool:
@@ -439,7 +440,7 @@ class HypothesisTracker:
         person_of = np.full(k, -1, np.intp)
         fresh = np.zeros(persons.shape[0], bool)
         if persons.shape[0]:
-            dp = _distances(pred, persons)
+            dp = pairwise_distances(pred, persons)
             if k:
                 near = dp.argmin(axis=1)
                 person_of = np.where(dp[np.arange(k), near] <= c.person_gate, near, -1)
@@ -450,10 +451,10 @@ class HypothesisTracker:
             used = fresh & person_free
             used[person_of[person_of >= 0]] = True
             if xy.shape[0] and c.person_radius > 0 and used.any():
-                legs = _distances(xy, persons[used]).min(axis=1) <= c.person_radius
+                legs = pairwise_distances(xy, persons[used]).min(axis=1) <= c.person_radius
                 xy, structure = xy[~legs], structure[~legs]
         b = xy.shape[0]
-        dist = _distances(pred, xy)
+        dist = pairwise_distances(pred, xy)
         # Equation 2 on the predictions of the existing hypotheses.
         if b:
             # (A stopped object held by the scans does not make the motion near it old.)
@@ -475,7 +476,7 @@ class HypothesisTracker:
         # Gating, splitting and Equation 3 for the others.
         gate = (dist <= c.gate) & ~by_person[:, None]
         if c.person_blob_gate > 0 and k and b:
-            person_kind = hyp.person_samples >= c.person_kind_samples
+            person_kind = self._is_person(hyp)
             gate[person_kind] &= dist[person_kind] <= c.person_blob_gate
         hi, bi = np.nonzero(gate)
         if hi.size:
@@ -551,20 +552,24 @@ class HypothesisTracker:
         self.prev_origin = np.asarray(blobs.origin, dtype=float)[:2]
         return self._result(t, newly, created, bounded)
 
+    def _is_person(self, hyp: HypothesisArrays) -> np.ndarray:
+        """Mask: hypotheses of kind person (supported by person_kind_samples detections)."""
+        return hyp.person_samples >= self.config.person_kind_samples
+
     def _remember_lost(self, gone: HypothesisArrays, t: float) -> None:
         """Keep the confirmed tracks just removed for ``resume_time``."""
         c = self.config
         fresh = self.lost[self.lost[:, 1] >= t - c.resume_time]
         if len(gone):
             rows = np.column_stack((gone.track_id, np.full(len(gone), t), gone.position,
-                                    gone.person_samples >= c.person_kind_samples))
+                                    self._is_person(gone)))
             fresh = np.vstack((fresh, rows))
         self.lost = fresh[-c.max_hypotheses:]
 
     def _on_confirmed(self, hyp: HypothesisArrays) -> np.ndarray:
         """Mask: unconfirmed hypotheses within duplicate_radius of a confirmed one."""
         confirmed = hyp.position[hyp.confirmed]
-        near = (_distances(hyp.position, confirmed) <= self.config.duplicate_radius).any(axis=1)
+        near = (pairwise_distances(hyp.position, confirmed) <= self.config.duplicate_radius).any(axis=1)
         return near & ~hyp.confirmed
 
     def _resume(self, hyp: HypothesisArrays, newly: np.ndarray, t: float) -> None:
@@ -575,8 +580,8 @@ class HypothesisTracker:
         if not len(lost):
             self.lost = lost
             return
-        person = hyp.person_samples[newly] >= c.person_kind_samples
-        d = _distances(hyp.position[newly], lost[:, 2:4])
+        person = self._is_person(hyp)[newly]
+        d = pairwise_distances(hyp.position[newly], lost[:, 2:4])
         d[person[:, None] != (lost[None, :, 4] > 0.5)] = np.inf
         taken = np.zeros(len(lost), bool)
         done = np.zeros(len(newly), bool)
@@ -603,7 +608,7 @@ class HypothesisTracker:
         if np.hypot(*v_scanner) < c.ride_along_min_speed:
             return np.zeros(len(hyp), bool)
         relative = np.hypot(*(hyp.velocity - v_scanner).T)
-        return (relative < c.ride_along_speed) & (hyp.person_samples < c.person_kind_samples)
+        return (relative < c.ride_along_speed) & ~self._is_person(hyp)
 
     def _result(self, t, newly, created, bounded) -> FrameResult:
         return FrameResult(stamp=t, hypotheses=self.hyp, newly_confirmed=newly,
@@ -676,7 +681,7 @@ class HypothesisTracker:
             if earlier.shape[0] == 0:
                 continue
             idx = np.flatnonzero(todo)
-            disp = _distances(new_xy[idx], earlier)
+            disp = pairwise_distances(new_xy[idx], earlier)
             pair = (disp <= c.max_speed * dt) & (disp >= c.min_displacement)
             ni, pi = np.nonzero(pair)
             if ni.size:
@@ -713,7 +718,7 @@ class HypothesisTracker:
             if earlier.shape[0] == 0:
                 continue
             idx = np.flatnonzero(todo)
-            d = _distances(persons[idx], earlier)
+            d = pairwise_distances(persons[idx], earlier)
             near = d.argmin(axis=1)
             ok = d[np.arange(idx.size), near] <= c.max_speed * age
             prev[idx[ok]] = earlier[near[ok]]
@@ -762,12 +767,12 @@ class HypothesisTracker:
         out = np.full(rows.size, -1, np.intp)
         if c.segment_gate <= 0 or segments.shape[0] == 0 or rows.size == 0:
             return out
-        person = hyp.person_samples[rows] >= c.person_kind_samples
+        person = self._is_person(hyp)[rows]
         # A person (its legs are recognisable) is followed within segment_gate of its
         # prediction; another object only where it last was (it stopped there), not onto
         # clutter it passes.
-        d = np.where(person[:, None], _distances(pred, segments),
-                     _distances(hyp.position[rows], segments))
+        anchor = np.where(person[:, None], pred, hyp.position[rows])
+        d = pairwise_distances(anchor, segments)
         d[person[:, None] & (leg[None, :] < c.segment_min_leg)] = np.inf
         near = d.argmin(axis=1)
         gate = np.where(person, c.segment_gate, min(c.segment_gate, c.stop_radius))
@@ -894,14 +899,6 @@ def _components(k: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if np.array_equal(new, label):
             return label
         label = new
-
-
-def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Euclidean distances (len(a), len(b)) between two sets of 2D points."""
-    if a.shape[0] == 0 or b.shape[0] == 0:
-        return np.zeros((a.shape[0], b.shape[0]))
-    d = a[:, None, :] - b[None, :, :]
-    return np.sqrt(np.einsum('ijk,ijk->ij', d, d))
 
 
 def _finite_rows(xy, values=None):

@@ -41,7 +41,7 @@ from laser_tracker.core.blobs import BlobConfig, Blobs, scan_segments, segment
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map, pose_quality,
                                            pose_trusted, relative_motion)
-from laser_tracker.core.geometry import transform_points
+from laser_tracker.core.geometry import pairwise_distances, transform_points
 from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, \
     EgoMotionEstimator
 from laser_tracker.core.grid import FREE, GridBuilder, GridConfig, lookup_stack, transform_grid
@@ -368,8 +368,7 @@ class Detector:
         b = det.blobs
         movers = b.local()
         if movers.shape[0] and points.shape[0]:
-            d = points[:, None, :] - movers[None, :, :]
-            near = (np.einsum('ijk,ijk->ij', d, d) <= MOVER_RADIUS ** 2).any(axis=1)
+            near = (pairwise_distances(points, movers) <= MOVER_RADIUS).any(axis=1)
             points = points[~near]
         self.background.add(transform_points(pose, points), stamp)
 

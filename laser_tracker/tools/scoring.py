@@ -67,7 +67,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from laser_tracker.config import param
-from laser_tracker.core.geometry import compose, interpolate_poses, inverse, wrap_angle
+from laser_tracker.core.geometry import (compose, interpolate_poses, inverse,
+                                         pairwise_distances, wrap_angle)
 
 log = logging.getLogger(__name__)
 
@@ -362,12 +363,6 @@ MOT_METRICS = ['mota', 'motp', 'num_switches', 'num_false_positives', 'num_misse
                'num_matches', 'num_objects', 'precision', 'recall']
 
 
-def _distances(obj_xy: np.ndarray, trk_xy: np.ndarray) -> np.ndarray:
-    if obj_xy.size == 0 or trk_xy.size == 0:
-        return np.empty((obj_xy.shape[0], trk_xy.shape[0]))
-    return np.linalg.norm(obj_xy[:, None, :] - trk_xy[None, :, :], axis=2)
-
-
 def _assign(d: np.ndarray, threshold: float) -> list[tuple[int, int]]:
     """Minimum-distance one-to-one pairs within the threshold."""
     if d.size == 0:
@@ -486,7 +481,7 @@ def score(truth: TruthTable, tracks: TrackTable,
         orows, trows = obj_groups[f], trk_groups[f]
         oxy = np.column_stack((truth.x[orows], truth.y[orows]))
         txy = np.column_stack((scored.x[trows], scored.y[trows]))
-        d = _distances(oxy, txy)
+        d = pairwise_distances(oxy, txy)
         oids, tids = truth.obj_id[orows], scored.track_id[trows]
         dm = np.where(d <= thr, d, np.nan)
         acc_all.update(oids.tolist(), tids.tolist(), dm, frameid=f)
