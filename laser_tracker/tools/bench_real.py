@@ -1,8 +1,10 @@
 """``laser-tracker bench real``: the tracker on the public real recordings, scored.
 
-Replays each real recording found under ``$LASER_TRACKER_DATA`` (README.md, "Data") with the
-package defaults and with ``config/paper_reference.yaml`` (the paper's method alone), scores
-the replay with ``laser-tracker evaluate`` and prints one table (and ``--json``):
+Replays each real recording found under ``$LASER_TRACKER_DATA`` (README.md, "Data") in three
+modes: ``paper`` (``config/paper_reference.yaml``, the paper's method alone), ``motion`` (the
+defaults without the person detector: what moves only) and ``defaults``; scores each replay
+with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.md,
+``--json`` for programs):
 
 * ``person_following``: leg_tracker's annotated person-following recording (no odometry):
   following-mode counts as the leg_tracker benchmarks count them, CLEAR MOT over every
@@ -13,46 +15,88 @@ the replay with ``laser-tracker evaluate`` and prints one table (and ``--json``)
 * ``mit_csail``: the raw mit-csail log with its own odometry: false tracks per minute on
   static structure mapped with the replay's poses;
 * ``leg_demo``: leg_tracker's stationary demo (people walking and standing, no labels):
-  confirmed tracks per minute, by kind.
+  confirmed tracks per minute, by kind;
+* ``negative_2_left`` / ``_right`` / ``_rear``: leg_tracker's ``negative_2.bag``, one row per
+  scanner: a robot driving 38 m with nobody in view, so every confirmed track is false; and
+  ``..._inf``: the same scans with their no-return readings (0 and codes below ``range_min``)
+  written as +inf, as REP 117 drivers write them.
 
-What is not present is reported as missing, never failed. It takes a few minutes.
+What is not present is reported as missing, never failed. It takes a few minutes
+(``--jobs 2`` on a free 2-core machine halves it).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import logging
+import math
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+import numpy as np
 
 from laser_tracker import parameters
 from laser_tracker.tools.data import real_recording
 
 REPO = Path(__file__).resolve().parents[2]
-CONFIGS = {'defaults': None, 'paper': REPO / 'config' / 'paper_reference.yaml'}
+MODES = ('paper', 'motion', 'defaults')
+NEGATIVE_SCANNERS = ('left', 'right', 'rear')
+RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_csail',
+              'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
+                                  for s in NEGATIVE_SCANNERS)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--only', nargs='+', metavar='NAME',
-                        help='person_following freiburg_realistic freiburg_poor mit_csail '
-                             'leg_demo (default: all)')
-    parser.add_argument('--modes', nargs='+', default=list(CONFIGS), choices=list(CONFIGS),
-                        help='configurations to run (default: defaults paper)')
-    parser.add_argument('--config', metavar='YAML', help='a parameter file to run as well '
-                        '(mode "custom")')
+                        help=' '.join(RECORDINGS) + ' (default: all)')
+    parser.add_argument('--modes', nargs='+', default=list(MODES), choices=list(MODES),
+                        help='configurations to run (default: all three)')
+    parser.add_argument('--config', metavar='YAML', action='append', default=[],
+                        help='a parameter file to run as well (mode "custom"; repeatable, '
+                        'later files win)')
     parser.add_argument('--json', metavar='OUT', help='write the figures as JSON')
+    parser.add_argument('--markdown', action='store_true',
+                        help='print the table as Markdown (as in README.md)')
     parser.add_argument('--keep', metavar='DIR', help='keep the replays here')
+    parser.add_argument('--jobs', type=int, default=1, help='replays run in parallel')
+
+
+def mode_parameters(mode: str, files=()):
+    """Loaded node parameters of a mode (``custom``: the given files)."""
+    if mode == 'paper':
+        return parameters.load_files([REPO / 'config' / 'paper_reference.yaml'])
+    if mode == 'motion':
+        return parameters.load([], overrides={'person_detector.enabled': False})
+    if mode == 'custom':
+        return parameters.load_files(files)
+    return parameters.load([])
+
+
+def no_returns_as_inf(src: Path, dst: Path, scan_topics) -> None:
+    """A rosbag2 copy of ``scan_topics`` of ``src`` whose no-return readings (0 and codes below
+    ``range_min``; -inf stays) read +inf, as a driver following REP 117 writes them."""
+    from laser_tracker.conversions import scan_from_msg, scan_to_msg
+    from laser_tracker.tools.bag import FACTORY, BagWriter, iter_messages
+
+    with BagWriter(dst) as bag:
+        for topic, t_ns, msg in iter_messages(src, scan_topics):
+            scan = scan_from_msg(msg)
+            r = scan.ranges
+            with np.errstate(invalid='ignore'):
+                r[(r >= 0) & (r < scan.range_min)] = math.inf
+            bag.write(topic, scan_to_msg(FACTORY, scan), int(t_ns))
 
 
 def _recordings(work: Path) -> dict:
-    """name -> (bag, scan topic, static map mode) for what is available (importing logs)."""
+    """name -> (bag, scan topic, scoring) for what is available (importing logs)."""
     from laser_tracker.tools.import_carmen import convert
 
     found = {}
     pf = real_recording('leg_tracker/person_following_outdoor_1.bag')
     if pf.exists():
-        found['person_following'] = (pf, '/scan_base2', None)
+        found['person_following'] = (pf, '/scan_base2', 'annotated')
     freiburg = real_recording('carmen/freiburg-079-part1-corrected.log.gz')
     if freiburg.exists():
         for noise in ('realistic', 'poor'):
@@ -68,11 +112,20 @@ def _recordings(work: Path) -> dict:
         found['mit_csail'] = (out, '/scan', 'ego')
     demo = real_recording('leg_tracker/demo_stationary_simple_environment.bag')
     if demo.exists():
-        found['leg_demo'] = (demo, '/scan', None)
+        found['leg_demo'] = (demo, '/scan', 'unlabelled')
+    negative = real_recording('leg_tracker/training/negative_2.bag')
+    if negative.exists():
+        topics = [f'/{s}_scan' for s in NEGATIVE_SCANNERS]
+        inf = work / 'negative_2_inf'
+        if not inf.exists():
+            no_returns_as_inf(negative, inf, topics)
+        for s, topic in zip(NEGATIVE_SCANNERS, topics):
+            found[f'negative_2_{s}'] = (negative, topic, 'negative')
+            found[f'negative_2_{s}_inf'] = (inf, topic, 'negative')
     return found
 
 
-def score(name: str, bag: Path, scan_topic: str, static: str | None, config, out: Path) -> dict:
+def score(name: str, bag: Path, scan_topic: str, scoring: str, config, out: Path) -> dict:
     """Replay ``bag`` into ``out`` with ``config`` and score it; the figures of the table."""
     from laser_tracker.tools.evaluate import evaluate_recording, report_unlabelled
     from laser_tracker.tools.replay import replay_bag
@@ -82,7 +135,7 @@ def score(name: str, bag: Path, scan_topic: str, static: str | None, config, out
                          progress=False)
     row = {'scans': summary['scans'], 'confirmed': summary['confirmed_tracks'],
            'replay_s': round(time.perf_counter() - t0, 1)}
-    if name == 'person_following':
+    if scoring == 'annotated':
         ev = evaluate_recording(out, bag, scan_topic=scan_topic).result
         f = ev['following_all_annotations']
         row.update(tracked=f['tracked'], annotated=f['objects'], switches=f['id_switches'],
@@ -90,8 +143,8 @@ def score(name: str, bag: Path, scan_topic: str, static: str | None, config, out
                    mota_all=ev['clear_mot']['all']['mota'],
                    mota_walking=ev['clear_mot']['walking']['mota'],
                    fp=ev['clear_mot']['all']['num_false_positives'])
-    elif static is not None:
-        st = evaluate_recording(out, bag, static=static, scan_topic=scan_topic)
+    elif scoring in ('reference', 'ego'):
+        st = evaluate_recording(out, bag, static=scoring, scan_topic=scan_topic)
         s = st.result['static_structure']
         row.update(minutes=round(s['duration_s'] / 60, 2), false=s['false_tracks'],
                    false_per_minute=s['false_per_minute'],
@@ -100,53 +153,104 @@ def score(name: str, bag: Path, scan_topic: str, static: str | None, config, out
         r = report_unlabelled(out).result
         row.update(minutes=round(r['duration_s'] / 60, 2),
                    confirmed_per_minute=r['confirmed_per_minute'])
-    kinds = _kinds(out / 'tracks.csv')
-    row.update(kinds)
+        if scoring == 'negative':     # nobody in view: every confirmed track is false
+            row.update(false=row['confirmed'],
+                       false_per_minute=r['confirmed_per_minute'])
+    row.update(_kinds(out / 'tracks.csv', out / 'ego_motion.csv'))
     return row
 
 
-def _kinds(path: Path) -> dict:
-    """Confirmed tracks by kind (person / object) and how many were ever standing."""
+def _kinds(tracks: Path, ego: Path) -> dict:
+    """Confirmed tracks by kind (person / object), how many were ever standing, and how many
+    stayed within 1 m of the scanner while confirmed (the robot's own body)."""
     import csv
-    kind, standing = {}, set()
-    with open(path, newline='') as fh:
+    poses = np.loadtxt(ego, delimiter=',', skiprows=1, ndmin=2)
+    where = {round(float(s), 6): i for i, s in enumerate(poses[:, 0])} if poses.size else {}
+    kind, standing, far = {}, set(), set()
+    with open(tracks, newline='') as fh:
         for r in csv.DictReader(fh):
             if r['confirmed'] != '1':
                 continue
-            kind[r['track_id']] = r.get('kind', 'object')
+            tid = r['track_id']
+            kind[tid] = r.get('kind', 'object')
             if r.get('moving') == '0':
-                standing.add(r['track_id'])
+                standing.add(tid)
+            i = where.get(round(float(r['stamp']), 6))
+            if i is None or math.hypot(float(r['x']) - poses[i, 1],
+                                       float(r['y']) - poses[i, 2]) > 1.0:
+                far.add(tid)
     return {'person_tracks': sum(1 for k in kind.values() if k == 'person'),
             'object_tracks': sum(1 for k in kind.values() if k != 'person'),
-            'ever_standing': len(standing)}
+            'ever_standing': len(standing), 'within_1m': len(set(kind) - far)}
+
+
+def _run_one(job) -> tuple[str, str, dict]:
+    name, mode, bag, topic, scoring, files, out = job
+    logging.basicConfig(level=logging.ERROR)
+    return name, mode, score(name, bag, topic, scoring, mode_parameters(mode, files), out)
 
 
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.ERROR)
-    configs = {m: CONFIGS[m] for m in args.modes}
+    modes = list(args.modes) + (['custom'] if args.config else [])
     if args.config:
-        configs['custom'] = Path(args.config)
+        mode_parameters('custom', args.config)      # a bad file fails before any work
     with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_real_') as tmp:
         work = Path(args.keep) if args.keep else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
         found = _recordings(work)
-        names = args.only or ['person_following', 'freiburg_realistic', 'freiburg_poor',
-                              'mit_csail', 'leg_demo']
-        results: dict = {}
+        names = args.only or list(RECORDINGS)
+        jobs = []
         for name in names:
             if name not in found:
                 print(f'{name}: not found under $LASER_TRACKER_DATA (README.md, "Data")')
                 continue
-            bag, topic, static = found[name]
-            for mode, path in configs.items():
-                config = parameters.load_files([path] if path else [])
-                row = score(name, bag, topic, static, config, work / f'{name}_{mode}')
+            bag, topic, scoring = found[name]
+            jobs += [(name, mode, bag, topic, scoring, args.config, work / f'{name}_{mode}')
+                     for mode in modes]
+        results: dict = {}
+        if args.jobs > 1:
+            with ProcessPoolExecutor(args.jobs) as pool:
+                done = pool.map(_run_one, jobs)
+                for name, mode, row in done:
+                    results.setdefault(name, {})[mode] = row
+                    _print_row(name, mode, row, args.markdown)
+        else:
+            for job in jobs:
+                name, mode, row = _run_one(job)
                 results.setdefault(name, {})[mode] = row
-                print(f'{name:<20} {mode:<9} ' + ', '.join(
-                    f'{k} {_fmt(v)}' for k, v in row.items()), flush=True)
+                _print_row(name, mode, row, args.markdown)
+    if args.markdown:
+        print(markdown_table(results, modes))
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2) + '\n')
     return 0
+
+
+def _print_row(name: str, mode: str, row: dict, quiet: bool) -> None:
+    if not quiet:
+        print(f'{name:<24} {mode:<9} ' + ', '.join(f'{k} {_fmt(v)}' for k, v in row.items()),
+              flush=True)
+
+
+def headline(row: dict) -> str:
+    """The one figure that judges a recording's row (README.md, "Real recordings")."""
+    if 'tracked' in row:
+        return (f"{row['tracked']:,} of {row['annotated']:,} "
+                f"({100 * row['tracked'] / max(row['annotated'], 1):.1f} %), "
+                f"{row['switches']} switches, MOTA {row['mota_all']:.3f}")
+    if 'false_per_minute' in row and 'false' in row:
+        return f"{row['false']} false ({row['false_per_minute']:.2f}/min)"
+    return f"{row['confirmed']} tracks ({row['confirmed_per_minute']:.2f}/min)"
+
+
+def markdown_table(results: dict, modes) -> str:
+    lines = ['| recording | ' + ' | '.join(modes) + ' |',
+             '|---|' + '---|' * len(modes)]
+    for name, rows in results.items():
+        lines.append(f'| `{name}` | ' + ' | '.join(
+            headline(rows[m]) if m in rows else '-' for m in modes) + ' |')
+    return '\n'.join(lines)
 
 
 def _fmt(v) -> str:

@@ -17,7 +17,9 @@ side around the body centre. Step length is ``speed / cadence`` with cadence
 1.5 m/s), rounded to whole steps per walk.
 
 A :class:`Robot` is a rectangle (4 segments) centred on its trajectory, its long side along the
-trajectory's heading.
+trajectory's heading. A :class:`RobotBody` is the scanning platform's own body: segments and
+circles fixed in the platform's base frame, carried along its trajectory (what a 270 deg
+scanner sees of the chassis, the mast or a cable).
 """
 from __future__ import annotations
 
@@ -303,3 +305,33 @@ class Robot:
     def corners(self, t: float) -> np.ndarray:
         x, y, th = self.trajectory.pose(t)
         return box_corners(x, y, self.length, self.width, th)
+
+
+class RobotBody:
+    """The scanning platform's own parts, fixed in its base frame: ``segments`` (S, 4) and
+    ``circles`` (C, 3) in metres, carried along the platform's ``trajectory``."""
+
+    def __init__(self, trajectory: Trajectory, segments=(), circles=()):
+        self.trajectory = trajectory
+        self.local_segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+        self.local_circles = np.asarray(circles, dtype=float).reshape(-1, 3)
+
+    def _place(self, t, xy: np.ndarray) -> np.ndarray:
+        """Points (P, 2) of the base frame at the platform poses at ``t`` -> (..., P, 2)."""
+        pose = self.trajectory.pose(t)
+        c, s = np.cos(pose[..., 2])[..., None], np.sin(pose[..., 2])[..., None]
+        x = pose[..., 0:1] + c * xy[:, 0] - s * xy[:, 1]
+        y = pose[..., 1:2] + s * xy[:, 0] + c * xy[:, 1]
+        return np.stack([x, y], axis=-1)
+
+    def segments(self, t) -> np.ndarray:
+        """The parts' segments (..., S, 4) at times ``t``."""
+        seg = self.local_segments
+        return np.concatenate([self._place(t, seg[:, :2]), self._place(t, seg[:, 2:])], axis=-1)
+
+    def circles(self, t) -> np.ndarray:
+        """The parts' circles (..., C, 3) at times ``t``."""
+        cir = self.local_circles
+        centre = self._place(t, cir[:, :2])
+        r = np.broadcast_to(cir[:, 2:3], centre.shape[:-1] + (1,))
+        return np.concatenate([centre, r], axis=-1)

@@ -128,9 +128,12 @@ class HokuyoConfig(ScannerMount):
     (7.5 Hz); ``scan_time`` is the time between scans, as the drivers report it with a skip.
 
     Readings: as the LMS model (Gaussian noise, rounding to the unit, random dropouts and
-    spurious short returns), plus dropouts at grazing incidence; a beam without a return
-    reads ``no_return``: 0, an error code below ``range_min`` as the Hokuyo drivers of the
-    real recordings report it (the beam frees nothing), or ``range_max`` or inf.
+    spurious short returns), plus dropouts at grazing incidence (beyond ``grazing_deg``,
+    with a probability that rises to ``grazing_dropout_probability`` over
+    ``grazing_ramp_deg``); a beam without a return reads ``no_return``: 0, an error code
+    below ``range_min`` as the Hokuyo drivers of the real recordings report it (the beam
+    frees nothing), ``range_max``, inf, or ``mixed``: inf, NaN (``no_return_nan``) or 0
+    (``no_return_zero``) at random, as a REP 117 driver that also reports its error codes.
     """
 
     beams: int = param(768, 'Number of beams, centred on the x axis.', min=3, max=4096)
@@ -152,10 +155,22 @@ class HokuyoConfig(ScannerMount):
     grazing_deg: float = param(80.0, 'Incidence angle (deg from the surface normal) beyond '
                                'which a return may be lost.', min=45.0, max=90.0)
     grazing_dropout_probability: float = param(0.5, 'Probability that a beam hitting beyond '
-                                               'grazing_deg reports no return.',
-                                               min=0.0, max=1.0)
+                                               'grazing_deg (+ grazing_ramp_deg) reports no '
+                                               'return.', min=0.0, max=1.0)
+    grazing_ramp_deg: float = param(0.0, 'Degrees beyond grazing_deg over which the '
+                                    'grazing dropout probability rises linearly from 0 '
+                                    '(0: a step at grazing_deg).', min=0.0, max=45.0)
+    grazing_reference_range: float = param(
+        0.0, 'Range (m) at which grazing_deg holds; nearer surfaces return at more grazing '
+        'angles, as the returned power grows with cos(incidence) / range^2 (the limit\'s '
+        'cosine scales with (range / reference)^2). 0 = the same limit at every range.',
+        min=0.0, max=60.0)
     no_return: str = param('zero', 'Reading of a beam without a return.',
-                           choices=('zero', 'range_max', 'inf'))
+                           choices=('zero', 'range_max', 'inf', 'mixed'))
+    no_return_nan: float = param(0.0, 'With no_return mixed: fraction of the beams without a '
+                                 'return that read NaN.', min=0.0, max=1.0)
+    no_return_zero: float = param(0.0, 'With no_return mixed: fraction that read 0.',
+                                  min=0.0, max=1.0)
     receive_delay: float = param(0.07, 'Time from the first beam to the scan reaching the host '
                                  '(s): the rest of the revolution and the USB transfer.',
                                  min=0.0, max=1.0)
@@ -177,7 +192,7 @@ class Hokuyo:
         self.beam_offsets = self.time_increment * np.arange(self.n_beams)
         self.unit = c.unit
         self.no_return_reading = {'zero': 0.0, 'range_max': c.range_max,
-                                  'inf': math.inf}[c.no_return]
+                                  'inf': math.inf, 'mixed': math.inf}[c.no_return]
 
     def scan_stamps(self, t_start: float, duration: float) -> np.ndarray:
         """Start times of the scans in ``[t_start, t_start + duration)``, on revolutions."""
@@ -200,10 +215,20 @@ class Hokuyo:
         u_drop, u_spur, u_len, u_graze = (rng.random(n), rng.random(n), rng.random(n),
                                           rng.random(n))
         in_range = np.isfinite(true_ranges) & (true_ranges < c.range_max)
-        grazing = np.zeros(n, dtype=bool) if incidence is None else \
-            np.asarray(incidence) > math.radians(c.grazing_deg)
-        dropped = in_range & ((u_drop < c.dropout_probability)
-                              | (grazing & (u_graze < c.grazing_dropout_probability)))
+        if incidence is None:
+            p_graze = np.zeros(n)
+        else:
+            limit = math.radians(c.grazing_deg)
+            if c.grazing_reference_range > 0:
+                scale = np.minimum(np.where(in_range, true_ranges, np.inf)
+                                   / c.grazing_reference_range, 1.0) ** 2
+                limit = np.arccos(math.cos(limit) * scale)
+            with np.errstate(invalid='ignore'):
+                beyond = np.asarray(incidence) - limit
+                ramp = np.clip(beyond / math.radians(c.grazing_ramp_deg), 0.0, 1.0) \
+                    if c.grazing_ramp_deg > 0 else (beyond > 0).astype(float)
+            p_graze = np.where(np.isfinite(ramp), ramp, 0.0) * c.grazing_dropout_probability
+        dropped = in_range & ((u_drop < c.dropout_probability) | (u_graze < p_graze))
         spurious = (u_spur < c.spurious_probability) & ~dropped
         reach = np.where(in_range, true_ranges, c.range_max)
         r = np.where(in_range, true_ranges, c.range_max) + noise
@@ -212,6 +237,11 @@ class Hokuyo:
         r = np.clip(r, max(c.range_min, self.unit), c.range_max)
         no_return = (~in_range & ~spurious) | dropped | (r >= c.range_max)
         r = np.where(no_return, self.no_return_reading, r)
+        if c.no_return == 'mixed':
+            u_code = rng.random(n)
+            r = np.where(no_return & (u_code < c.no_return_nan), np.nan, r)
+            r = np.where(no_return & (u_code >= c.no_return_nan)
+                         & (u_code < c.no_return_nan + c.no_return_zero), 0.0, r)
         returned = in_range & ~dropped & ~spurious & ~no_return
         return r, returned
 

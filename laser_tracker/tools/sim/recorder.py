@@ -17,12 +17,13 @@ import numpy as np
 
 from laser_tracker.conversions import MovingObject, PlanarOdometry
 from laser_tracker.core.scan import Scan
-from laser_tracker.tools.sim.agents import Trajectory
+from laser_tracker.tools.sim.agents import RobotBody, Trajectory
 from laser_tracker.tools.sim.lidar import HokuyoConfig, LidarConfig, make_scanner
 from laser_tracker.tools.sim.platform import OdometryConfig, OdometryStream, simulate_odometry
 from laser_tracker.tools.sim.world import World, cast_scene
 
 WORLD_FRAME = 'map'
+SELF = -2    # owner of a beam that hit the platform's own body (0: static world, -1: none)
 
 
 @dataclass
@@ -40,6 +41,7 @@ class Scenario:
     lidar: LidarConfig | HokuyoConfig = field(default_factory=LidarConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     publish_mount: bool = True        # record the scanner mount on /tf_static
+    body: tuple = ((), ())            # the platform's own parts: (segments, circles), base frame
 
     @property
     def mount(self) -> tuple[float, float, float]:
@@ -67,7 +69,8 @@ class Recording:
     scan_receive_times: np.ndarray
     odometry: OdometryStream
     truth: list[GroundTruthScan]
-    owners: list[np.ndarray]          # per scan: object id each beam hit (0 static, -1 none)
+    owners: list[np.ndarray]          # per scan: object id each beam hit (0 static, -1 none,
+                                      # SELF the platform's body)
 
     def odometry_messages(self) -> list[PlanarOdometry]:
         o, c = self.odometry, self.scenario.odometry
@@ -92,6 +95,8 @@ def record(scenario: Scenario) -> Recording:
     static_sets_circ = [(circ_static, np.zeros(len(circ_static), dtype=np.int64))]
     glass = scenario.world.glass
     mount = np.array(scenario.mount)
+    body = RobotBody(scenario.platform, *scenario.body)
+    has_body = bool(len(body.local_segments) or len(body.local_circles))
 
     stamps = lidar.scan_stamps(scenario.scan_start, scenario.duration)
     scans, truth, owners_all = [], [], []
@@ -106,6 +111,9 @@ def record(scenario: Scenario) -> Recording:
 
         present = [a for a in scenario.agents if a.trajectory.exists(stamp)]
         seg_sets, circ_sets = list(static_sets_seg), list(static_sets_circ)
+        if has_body:
+            seg_sets.append((body.segments(times), np.full(len(body.local_segments), SELF)))
+            circ_sets.append((body.circles(times), np.full(len(body.local_circles), SELF)))
         for a in present:
             circ = a.circles(times)                                   # (N, k, 3)
             if circ.shape[1]:

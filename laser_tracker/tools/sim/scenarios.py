@@ -8,7 +8,9 @@ platform starts at the pose its trajectory gives at t = 0, where ``odom`` coinci
 ``map``. The paper's experiments have a SICK LMS at the platform's origin;
 ``hokuyo_corridor_lobby`` mirrors a real robot instead: a Hokuyo-class scanner mounted off
 the origin and turned (``Scenario.mount``, recorded on /tf_static), glass, and a crowd that
-stops and goes.
+stops and goes; ``driving_past_people`` a robot that drives at 1 m/s along long walls past
+people who walk and stand, with a scanner that loses its returns at grazing incidence, writes
+them as +inf, NaN or 0, and sees parts of the robot's own body.
 """
 from __future__ import annotations
 
@@ -481,6 +483,98 @@ def hokuyo_corridor_lobby(seed: int = 9) -> Scenario:
                     publish_mount=True)
 
 
+# ------------------------------------------------------------------- driving past people
+# The scanner of driving_past_people: a 270 deg scanner on the front right corner, turned
+# 45 deg to the right, whose field of view grazes the robot's own side and front bumper.
+DRIVING_MOUNT = (0.40, -0.28, -45 * DEG)
+# The robot's own parts at scanner height, in base_link: its right side and the end of its
+# front bumper (seen at the two ends of the field of view) and a cable loop by the scanner.
+DRIVING_BODY = (((0.32, -0.30, -0.45, -0.30), (0.48, 0.0, 0.48, 0.32)),
+                ((0.30, -0.38, 0.015),))
+
+
+def driving_past_people(seed: int = 10) -> Scenario:
+    """A robot drives at 1 m/s along a 40 m corridor (3.6 m wide, 0.7 m from its right
+    wall) towards a hall, pausing 4 s on the way, past people who walk towards it, overtake it,
+    step out of doors ahead of it, cross its path far ahead and stand: against the far wall,
+    next to the robot where it pauses, by the wall it drives along. Its 270 deg scanner (768 beams, 11 m,
+    7.5 Hz, on the front right corner, turned 45 deg) loses most returns beyond 70 deg of
+    incidence at 3 m and beyond (more grazing ones nearer), writes a missing return as +inf
+    (NaN or 0 for some), and sees the robot's own side, bumper and a cable. 40 s."""
+    rng = _scene_rng(seed)
+    j = lambda s=0.05: _jitter(rng, s)  # noqa: E731
+    w = World()
+    ys, yn, t = -1.8, 1.8, 0.15
+    # The corridor: doors on the north side (x 6..7, 16.5..17.5, 23.5..24.5, 31..32), one on
+    # the south side (x 13..14); it opens into a hall at x = 40.
+    for x0, x1 in ((-4.0, 6.0), (7.0, 16.5), (17.5, 23.5), (24.5, 31.0), (32.0, 40.0)):
+        w.thick_wall(x0, yn, x1, yn, t)
+    for x0, x1 in ((-4.0, 13.0), (14.0, 40.0)):
+        w.thick_wall(x0, ys, x1, ys, t)
+    w.wall(-4.0, ys, -4.0, yn)
+    for x in (-4.0, 8.0, 20.0, 28.0, 40.0):          # offices behind the doors
+        w.wall(x, yn + 0.1, x, 6.0)
+        w.wall(x, ys - 0.1, x, -6.0)
+    w.wall(-4.0, 6.0, 40.0, 6.0)
+    w.wall(-4.0, -6.0, 40.0, -6.0)
+    for x in (3.0, 11.0, 22.0, 30.0, 36.0):         # desks and cabinets in the offices
+        w.box(x + j(), 5.3 + j(), 1.4, 0.7)
+        w.box(x + 1.0 + j(), -5.3 + j(), 1.2, 0.6)
+    w.box(9.5 + j(), 1.55, 1.2, 0.3)                  # a bench and a radiator in the corridor
+    w.box(21.0 + j(), -1.6, 1.0, 0.2)
+    # The hall (x 40..56, y -9..9), with pillars, a counter and chairs.
+    w.polyline([(40.0, yn + 0.075), (40.0, 9.0), (56.0, 9.0), (56.0, -9.0), (40.0, -9.0),
+                (40.0, ys - 0.075)])
+    for x, y in ((46.0, -4.0), (46.0, 4.5), (51.0, 0.0)):
+        w.circle(x + j(), y + j(), 0.3)
+    w.box(53.5 + j(), 6.5, 3.0, 0.8)
+    for x, y in ((48.0, -6.5), (48.6, -6.4), (49.2, -6.6)):
+        w.chair(x + j(), y + j(), float(rng.uniform(0, math.pi)))
+    duration, start = 40.0, 0.5
+    platform = (PathBuilder(0.0, 0.0, -0.8, 0.0).wait(0.5)
+                .go(14.0, -0.8, 1.0)
+                .wait(4.0)
+                .go(36.0, -0.8, 1.0))
+    platform.wait_until(start + duration + 1.5)
+    people = [
+        # Out of the door at x = 24 towards the robot on its left; passes it where it
+        # pauses, into the door at x = 6.5.
+        (8.0, (24.0, 2.6), [(24.0, 0.95, 1.2), (6.5, 0.95, 1.2), (6.5, 2.6, 1.2)]),
+        # Stands by the far wall (a notice board) 20 s, then into the door at x = 24.
+        (0.0, (12.0, 1.45), [20.0, (24.0, 1.45, 1.0), (24.0, 2.6, 1.0)]),
+        # Overtakes the robot on its left while it pauses.
+        (3.0, (-3.5, -0.1), [(38.0, -0.1, 1.5), (44.0, -3.0, 1.5)]),
+        # Out of the door at x = 17, stands where the robot will pause (1.2 m to its left)
+        # until after it has left, then walks on east.
+        (6.0, (17.0, 3.0), [(17.0, 1.2, 1.0), (14.6, 0.35, 1.0), 18.0, (39.0, 0.5, 1.1)]),
+        # Stands close to the right wall the robot drives along; the robot passes 0.5 m away.
+        (0.0, (26.0, -1.45), [34.0, (31.0, -1.3, 0.8)]),
+        # Out of the door at x = 31 ahead of the robot, walks east slower than it.
+        (27.0, (31.5, 3.0), [(31.5, 0.9, 0.9), (41.5, 1.5, 0.9), (44.0, 7.0, 0.9)]),
+        # At the corridor's far end: one crosses the hall past its opening from north to
+        # south; one walks in from the hall and stands by the right wall; one steps out
+        # of the door at x = 31 and stands by the far wall.
+        (31.5, (41.0, 4.0), [(41.0, -5.0, 1.1)]),
+        (25.0, (42.0, -3.0), [(41.0, -0.8, 1.0), (37.5, -1.25, 1.0), 20.0]),
+        (20.0, (31.5, 3.0), [(31.5, 1.3, 0.8), (30.5, 1.3, 0.8), 25.0]),
+    ]
+    agents = [_person(rng, i + 1, _walk(t0, first, *moves))
+              for i, (t0, first, moves) in enumerate(people)]
+    return Scenario(name='driving_past_people', seed=seed,
+                    description=_doc(driving_past_people),
+                    world=w, platform=platform.build(), agents=agents, duration=duration,
+                    scan_start=start,
+                    lidar=HokuyoConfig(mount_x=DRIVING_MOUNT[0], mount_y=DRIVING_MOUNT[1],
+                                       mount_yaw=DRIVING_MOUNT[2], frame_id='right_laser',
+                                       grazing_deg=68.0, grazing_ramp_deg=12.0,
+                                       grazing_dropout_probability=0.97,
+                                       grazing_reference_range=3.0,
+                                       no_return='mixed', no_return_nan=0.12,
+                                       no_return_zero=0.10),
+                    odometry=OdometryConfig(rate_hz=REAL_ROBOT_ODOMETRY_HZ),
+                    publish_mount=True, body=DRIVING_BODY)
+
+
 @dataclass(frozen=True)
 class ScenarioInfo:
     build: Callable[[int], Scenario]
@@ -492,7 +586,7 @@ SCENARIOS: dict[str, ScenarioInfo] = {
     f.__name__: ScenarioInfo(f, f.__defaults__[0], _doc(f))
     for f in (exp1_stationary_single_walker, exp2_translating_static, exp3_rotating_static,
               exp4_corridor_passers, fig8_robot_target, crossing_walkers,
-              hokuyo_corridor_lobby)
+              hokuyo_corridor_lobby, driving_past_people)
 }
 
 
