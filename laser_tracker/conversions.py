@@ -336,8 +336,8 @@ def ego_motion_to_msgs(factory: MessageFactory, pose):
     constant_velocity, init), ``motion_variance`` (x, y, yaw variances of that motion; 1e6 each
     when the scan match was refused), ``unmatched`` (fraction of the scan's points the match
     left unexplained), ``restarted`` (the pose chain restarted here: odometry-frame history is
-    void), ``trusted`` (for people reading it: whether the default gate trusts it) and
-    ``reason``.
+    void), ``trusted`` (for people reading it: whether the default gate trusts it),
+    ``reason`` and ``self_mask`` (the robot's own body in this scan, :func:`encode_body`).
     """
     from laser_tracker.core.difference import DifferenceConfig, pose_trusted
 
@@ -363,7 +363,8 @@ def ego_motion_to_msgs(factory: MessageFactory, pose):
               'unmatched': repr(float(q.unmatched)),
               'restarted': 'true' if q.restarted else 'false',
               'trusted': 'true' if trusted else 'false',
-              'reason': str(pose.reason)[:200]}
+              'reason': str(pose.reason)[:200],
+              'self_mask': encode_body(pose.body)}
     f = factory
     status = f.make('diagnostic_msgs/msg/DiagnosticStatus', level=f.byte(0 if trusted else 1),
                     name=EGO_STATUS_NAME, message=f'{pose.source}: {pose.reason}'[:200],
@@ -406,11 +407,51 @@ def ego_motion_from_msgs(odometry_msg, status_msg=None):
         unmatched = unmatched if 0.0 <= unmatched <= 1.0 else 1.0
         quality = PoseQuality(variance, unmatched, restarted)
         source, reason = values.get('source', ''), values.get('reason', '')
+        body = decode_body(values.get('self_mask', ''))
+    else:
+        body = None
     return StampedPose(stamp=odo.stamp, pose=pose, motion=np.zeros(3),
                        motion_covariance=np.zeros((3, 3)), pose_covariance=pose_cov,
                        quality=quality, source=source, reason=reason,
                        frame_id=odo.frame_id or 'odom', child_frame_id=odo.child_frame_id,
-                       stamp_ns=stamp_to_ns(odometry_msg.header.stamp))
+                       stamp_ns=stamp_to_ns(odometry_msg.header.stamp), body=body)
+
+
+def encode_body(body) -> str:
+    """Per-beam body ranges (NaN: none) as text: ``BEAMS|FIRST:R R ...;FIRST:R ...`` with
+    each run of masked beams from its first beam index, ranges in whole millimetres rounded
+    up ('' when nothing is masked)."""
+    if body is None:
+        return ''
+    body = np.asarray(body, dtype=float)
+    masked = np.isfinite(body)
+    if not masked.any():
+        return ''
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], masked.astype(np.int8), [0]))))
+    runs = []
+    for first, end in zip(edges[::2], edges[1::2]):
+        mm = np.ceil(body[first:end] * 1000.0).astype(np.int64)
+        runs.append(f'{first}:' + ' '.join(map(str, mm)))
+    return f'{body.size}|' + ';'.join(runs)
+
+
+def decode_body(text: str):
+    """Inverse of :func:`encode_body` (None for ''); ValueError when unreadable."""
+    if not text:
+        return None
+    try:
+        size, _, runs = text.partition('|')
+        body = np.full(int(size), np.nan)
+        for run in runs.split(';'):
+            first, _, values = run.partition(':')
+            mm = np.array(values.split(), dtype=float)
+            start = int(first)
+            if start < 0 or start + mm.size > body.size:
+                raise ValueError(f'run {run[:20]!r} outside {body.size} beams')
+            body[start:start + mm.size] = mm / 1000.0
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f'ego-motion status: self_mask unreadable: {exc}') from None
+    return body
 
 
 # ------------------------------------------------------------------------------- transforms

@@ -94,9 +94,11 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'ego_motion.prior_max_ratio': 0.0,
         'ego_motion.prior_gate': 0.0,
         'ego_motion.speed_check_jitter': 0.0,
+        'self_mask.learn': False,          # nothing of the robot's body is masked
     },
     'detection': {
         'grid.free_erosion': 0,            # free space only from each beam itself
+        'grid.no_return_bounds': False,    # a beam without a return frees no_return_free
         'difference.memory': 0,            # Eq. 1 against the previous grid alone
         'difference.motion_depth': 0.0,    # no platform-motion depth test
         'difference.pose_gate': False,     # every scan reports, whatever its ego-motion quality
@@ -109,6 +111,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
     'tracking': {
         'hypotheses.creation_window': 0.0,  # creation pairs with the previous frame only
         'hypotheses.ride_along_speed': 0.0,  # no ride-along test
+        'hypotheses.ride_along_reach': 0.0,
         'hypotheses.segment_gate': 0.0,    # a hypothesis without a blob coasts and fades
         'hypotheses.person_min_travel': 0.0,
         'hypotheses.person_confirm_samples': 0,

@@ -14,7 +14,7 @@ from laser_tracker.core.scan import Scan
 
 RES = 0.1
 CFG = GridConfig(resolution=RES, size=8.0, free_margin=0.1, no_return_free=3.0,
-                 free_erosion=0)
+                 free_erosion=0, no_return_bounds=False)
 N = CFG.cells  # 80 cells, the scanner at the grid centre
 
 
@@ -234,3 +234,71 @@ def test_deep_free_asks_for_free_space_beyond_the_motion_displacement():
     # A stationary scanner needs nothing beyond FREE.
     assert deep_free(np.array([cell_of(2.85, 0.05)], float), previous, (0.0, 0.0, 0.0),
                      RES, N, cfg)[0]
+
+
+# ----------------------------------------------------------- beams without a return
+
+
+BOUNDED = GridConfig(resolution=RES, size=8.0, free_margin=0.1, no_return_free=3.0,
+                     free_erosion=0, no_return_bounds=True, grazing_incidence=60.0)
+
+
+def _ray(angle, r):
+    return r * math.cos(angle), r * math.sin(angle)
+
+
+def test_a_gap_in_a_wall_frees_space_only_up_to_the_wall():
+    """Beams that lost their echo on a dark patch of a wall (2 m ahead, facing the scanner)
+    free space up to the wall, not through it; the paper's rule frees 3 m straight on."""
+    n = 181
+    angles = np.linspace(-math.pi / 2, math.pi / 2, n)
+    ranges = 2.0 / np.maximum(np.cos(angles), 1e-3)      # the wall x = 2
+    ranges[ranges > 2.9] = np.inf                        # beyond: nothing
+    ranges[85:96] = np.inf                               # the dark patch
+    behind = cell_of(2.5, 0.05)
+    assert build_grid(scan_180(ranges), CFG)[behind] == FREE
+    bounded = build_grid(scan_180(ranges), BOUNDED)
+    assert bounded[behind] == UNKNOWN
+    assert bounded[cell_of(2.0, 0.05)] != FREE           # the wall's cells
+    assert bounded[cell_of(1.5, 0.05)] == FREE           # in front of it: seen free
+
+
+def test_a_grazing_wall_frees_no_space_along_its_continuation():
+    """A wall 0.6 m to the left, returns lost beyond 70 deg of incidence (1.6 m ahead): the
+    beams past its visible end may have hit it, so its continuation is not freed (it would
+    be 'free before, occupied now' as the robot advances); open space away from it is."""
+    n = 361
+    angles = np.linspace(-math.pi / 2, math.pi / 2, n)
+    ranges = np.full(n, np.inf)
+    left = angles > 0.05
+    wall = 0.6 / np.sin(np.where(left, angles, 1.0))
+    incidence = np.pi / 2 - angles
+    seen = left & (incidence < math.radians(70))
+    ranges[seen] = wall[seen]
+    ranges[(angles > -0.1) & (angles < 0.05)] = 2.5      # something far ahead, not a wall
+    continuation = cell_of(2.4, 0.65)                    # on the wall, beyond its visible end
+    assert build_grid(scan_180(ranges), CFG)[continuation] == FREE
+    bounded = build_grid(scan_180(ranges), BOUNDED)
+    assert bounded[continuation] == UNKNOWN
+    assert bounded[cell_of(1.2, 0.3)] == FREE            # the corridor in front of the wall
+    assert bounded[cell_of(1.5, -1.5)] == FREE           # open space on the right
+    # The wall's continuation beyond the chord to the next return is not freed either.
+    ranges[(angles > -0.1) & (angles < 0.05)] = np.inf
+    assert build_grid(scan_180(ranges), BOUNDED)[continuation] == UNKNOWN
+
+
+def test_open_space_and_a_facing_edge_still_free_space():
+    """A person walking into open space must still be seen walking in: where the neighbours
+    return nothing, or the only surface is a small object facing the scanner, beams without
+    a return free space as before (a beam next to a return is bounded by it: its edge)."""
+    ranges = np.full(181, np.inf)
+    ranges[89:92] = 1.5                                  # a leg, facing the scanner
+    bounded = build_grid(scan_180(ranges), BOUNDED)
+    for x, y in ((2.5, 0.8), (2.5, -0.8), (1.0, 2.0), (0.5, -2.5)):
+        assert bounded[cell_of(x, y)] == FREE, (x, y)
+    eroding = GridBuilder(GridConfig(size=8.0, no_return_free=3.0, free_erosion=1,
+                                     no_return_bounds=False))
+    eroding.build(scan_180(ranges))
+    free = eroding._ext[:181]
+    assert free[88] == pytest.approx(1.5) and free[92] == pytest.approx(1.5)
+    assert free[86] == pytest.approx(3.0)

@@ -77,8 +77,25 @@ class GridConfig:
                               'the next.', min=0, max=10)
     free_erosion_jump: float = param(0.5, 'Neighbouring beams whose free ranges differ by this '
                                      'much (m) or more are a depth jump (an object\'s edge), '
-                                     'not one surface: no erosion across it.', min=0.0,
+                                     'not one surface: no erosion across it. A beam without '
+                                     'a return beside a return is always bounded by it (it '
+                                     'may have grazed that object\'s edge).', min=0.0,
                                      max=100.0)
+    no_return_bounds: bool = param(
+        True, 'A beam without a return frees space only up to the surfaces its neighbours '
+        'see: between two returns, up to the straight line joining them (the echo was lost '
+        'on a dark, specular or grazing stretch of one surface, or the space beyond lies '
+        'between two objects: seen from elsewhere it may hold anything); beside a surface '
+        'seen at grazing incidence (grazing_incidence), up to that surface\'s continuation. '
+        'false = up to no_return_free (paper).')
+    grazing_incidence: float = param(
+        60.0, 'A surface seen at this angle of incidence or more (deg from its normal) at the '
+        'edge of a run of beams without a return is taken to continue into the run '
+        '(no_return_bounds): a scanner loses its returns at grazing incidence, so those beams '
+        'may well have hit it further along (the receding end of a wall the robot drives '
+        'along). The return\'s strength falls with the cosine of the incidence: at 60 deg it '
+        'is half that at normal incidence; Hokuyo-class scanners lose most returns beyond '
+        '70-80 deg, SICK LMS beyond 85 deg.', min=0.0, max=90.0)
 
     @property
     def cells(self) -> int:
@@ -228,6 +245,7 @@ class GridBuilder:
         ext = self._ext
         # Scan.valid() and Scan.free_ranges() in one pass (same rules, fewer array passes).
         r = scan.ranges
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)
         limit = min(c.no_return_free, scan.range_max)
         with np.errstate(invalid='ignore'):
             valid = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
@@ -238,16 +256,21 @@ class GridBuilder:
         np.copyto(fr, r, where=valid)
         fr[~valid] = 0.0
         fr[no_return] = limit
+        if c.no_return_bounds and no_return.any():
+            np.minimum(fr, no_return_bounds(r, valid, no_return, cos, sin, c), out=fr)
         if c.free_erosion:
             raw = fr.copy()
             jump = c.free_erosion_jump
             for j in range(1, min(c.free_erosion, beams - 1) + 1):
                 # A neighbour's shorter free range bounds this beam's when both lie on one
-                # surface (a grazing wall), not across a depth jump (an object's edge).
+                # surface (a grazing wall), not across a depth jump (an object's edge); a
+                # beam without a return is bounded by a returning neighbour (its edge).
                 a, b = raw[:-j], raw[j:]
                 near = np.abs(a - b) < jump
-                np.minimum(fr[j:], np.where(near, a, np.inf), out=fr[j:])
-                np.minimum(fr[:-j], np.where(near, b, np.inf), out=fr[:-j])
+                np.minimum(fr[j:], np.where(near | (no_return[j:] & valid[:-j]), a, np.inf),
+                           out=fr[j:])
+                np.minimum(fr[:-j], np.where(near | (no_return[:-j] & valid[j:]), b, np.inf),
+                           out=fr[:-j])
         ext[beams] = -1.0   # "no beam": never free
         index = self._which
         padded = self.stack[index]
@@ -255,7 +278,6 @@ class GridBuilder:
         np.take(ext, table.beam, out=self._free_at_cell, mode='wrap')  # indices are valid
         np.less(table.reach, self._free_at_cell, out=padded.reshape(-1).view(np.bool_))
         # End points -> OCCUPIED cells.
-        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)
         rv = r[valid]
         pts = np.empty((rv.size, 2))
         np.multiply(rv, cos[valid], out=pts[:, 0])
@@ -271,6 +293,86 @@ class GridBuilder:
         return GridFrame(padded=padded, points=pts, ij=ij, flat=flat, index=index,
                          free=fr.copy(), angle_min=float(scan.angle_min),
                          angle_increment=float(scan.angle_increment))
+
+
+#: Returns that define the surface at the edge of a run of beams without a return ...
+SURFACE_POINTS = 5
+#: ... lying within this distance (m) of the edge return, ...
+SURFACE_SPAN = 0.6
+#: ... and within this RMS distance (m) of one straight line (a wall, not clutter or a corner).
+SURFACE_RMS = 0.03
+
+
+def no_return_bounds(r: np.ndarray, valid: np.ndarray, no_return: np.ndarray,
+                     cos: np.ndarray, sin: np.ndarray, config: GridConfig) -> np.ndarray:
+    """Per beam, the farthest range (m) a beam without a return may free
+    (``no_return_bounds``); inf where nothing bounds it. Its run of beams without a return
+    lies between the returns before and after it (the run's edges):
+
+    * with both edges, the beam frees space up to the chord joining them;
+    * at an edge whose surface is seen at grazing incidence (``grazing_incidence``), up to
+      that surface's continuation: the line through the last ``SURFACE_POINTS`` returns
+      before the run (the first ones after it), when they lie within ``SURFACE_SPAN`` of the
+      edge and ``SURFACE_RMS`` of a line.
+
+    Each bound is moved half a cell towards the scanner, so that the cells the surface runs
+    through are never freed."""
+    n = r.size
+    out = np.full(n, np.inf)
+    idx = np.flatnonzero(valid)
+    m = SURFACE_POINTS
+    shift = 0.5 * config.resolution
+    if idx.size < 2:
+        return out
+    q = np.column_stack((r[idx] * cos[idx], r[idx] * sin[idx]))
+    # Window sums (cumulative, one zero row in front) for the line of m consecutive returns.
+    cum = np.zeros((idx.size + 1, 5))
+    np.cumsum(np.column_stack((q, q[:, 0] ** 2, q[:, 0] * q[:, 1], q[:, 1] ** 2)), axis=0,
+              out=cum[1:])
+    sums = (cum[m:] - cum[:-m]) / m                      # window w: returns w .. w + m - 1
+    mx, my = sums[:, 0], sums[:, 1]
+    sxx, sxy, syy = sums[:, 2] - mx * mx, sums[:, 3] - mx * my, sums[:, 4] - my * my
+    angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)       # direction of the line
+    half = 0.5 * (sxx + syy)
+    smallest = half - np.sqrt(np.maximum(half * half - (sxx * syy - sxy * sxy), 0.0))
+    span = np.hypot(*(q[m - 1:] - q[:1 - m or None]).T)
+    nx, ny = -np.sin(angle), np.cos(angle)               # the line's normal
+    offset = mx * nx + my * ny                           # its signed distance from the scanner
+    offset = np.sign(offset) * np.maximum(np.abs(offset) - shift, 0.0)
+    line_ok = (span <= SURFACE_SPAN) & (smallest <= SURFACE_RMS ** 2)
+    cos_graze = math.cos(math.radians(config.grazing_incidence))
+
+    beams = np.flatnonzero(no_return)
+    after = np.searchsorted(idx, beams)                  # first return after each beam
+    dx, dy = cos[beams], sin[beams]
+    # Between two returns: the chord joining them.
+    both = (after > 0) & (after < idx.size)
+    if both.any():
+        a = q[np.maximum(after - 1, 0)]
+        b = q[np.minimum(after, idx.size - 1)]
+        ex, ey = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+        length = np.hypot(ex, ey)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            # The chord's distance from the scanner along its normal, moved towards it.
+            nx_c, ny_c = -ey / length, ex / length
+            off = a[:, 0] * nx_c + a[:, 1] * ny_c
+            off = np.sign(off) * np.maximum(np.abs(off) - shift, 0.0)
+            t = off / (dx * nx_c + dy * ny_c)
+        bound = both & (length > 0) & (t > 0)
+        out[beams[bound]] = t[bound]
+    if sums.shape[0] == 0 or config.grazing_incidence >= 90.0:
+        return out
+    for edge, window in ((after - 1, after - m), (after, after)):   # before, after the run
+        has = (edge >= 0) & (edge < idx.size) & (window >= 0) & (window < sums.shape[0])
+        w = np.where(has, window, 0)
+        e = idx[np.where(has, edge, 0)]
+        graze = np.abs(cos[e] * nx[w] + sin[e] * ny[w]) <= cos_graze
+        along = dx * nx[w] + dy * ny[w]
+        with np.errstate(divide='ignore', invalid='ignore'):
+            t = offset[w] / along
+        bound = has & line_ok[w] & graze & (t > 0)
+        out[beams[bound]] = np.minimum(out[beams[bound]], t[bound])
+    return out
 
 
 def build_grid(scan: Scan, config: GridConfig) -> np.ndarray:

@@ -60,6 +60,11 @@ from laser_tracker.core.kalman import TrackFilter, KalmanConfig
 
 log = logging.getLogger(__name__)
 
+#: A measurement rides along with the scanner (``ride_along_reach``) when it moved at least
+#: this far (m) in the world since the previous frame (more than range noise), and less than
+#: half as far in the scanner's frame.
+RIDE_MIN_TRAVEL = 0.05
+
 
 @dataclass(frozen=True)
 class HypothesisConfig:
@@ -133,6 +138,15 @@ class HypothesisConfig:
     ride_along_min_speed: float = param(
         0.2, 'The scanner speed (m/s) from which ride_along_speed applies.', min=0.0,
         max=10.0)
+    ride_along_reach: float = param(
+        1.0, 'A motion blob or person detection within this distance (m) of the scanner that '
+        'keeps its place in the scanner\'s frame from one frame to the next while the '
+        'scanner moves is ignored: the robot\'s own body, before the self-mask has learnt '
+        'it. 0 = off (paper).', min=0.0, max=10.0)
+    confirm_time: float = param(
+        0.0, 'A hypothesis is confirmed only once it has lived this long (s) since it was '
+        'created, whatever the scan rate: the paper\'s 4 samples span 0.8 s at its 5 Hz but '
+        '0.4 s at 10 Hz. 0 = samples alone (paper).', min=0.0, max=10.0)
     person_gate: float = param(
         0.5, 'A person detection (legs) within this distance (m) of a prediction supports '
         'that hypothesis (each hypothesis takes its nearest). Wider keeps a person whose '
@@ -351,6 +365,8 @@ class HypothesisTracker:
         # Earlier frames for creation (newest last): (stamp, motion blobs, persons).
         self.recent: deque = deque(maxlen=64)
         self.prev_origin: np.ndarray | None = None
+        self._scanner = np.zeros(3)
+        self._ride = [np.zeros((0, 2)), np.zeros((0, 2))]   # last frame's blobs, people (local)
         # Confirmed tracks lost recently (resume_time): id, stamp, x, y, is a person.
         self.lost = np.zeros((0, 5))
 
@@ -413,6 +429,7 @@ class HypothesisTracker:
         """One frame: the measurements of one scan (odometry frame) -> updated hypotheses."""
         c = self.config
         t = float(blobs.stamp)
+        self._scanner = np.asarray(blobs.origin, dtype=float).reshape(-1)[:3]
         xy, ok = self._clean(blobs)
         structure = np.asarray(blobs.structure, dtype=float).reshape(-1)
         if structure.shape[0] == ok.shape[0]:
@@ -430,7 +447,12 @@ class HypothesisTracker:
         if person_static.shape[0] == persons.shape[0]:
             spread = np.where(person_static, np.nan, spread)   # clutter's "legs" do not swing
         segments, leg = _finite_rows(blobs.segments, blobs.segment_leg)
-
+        if c.ride_along_reach > 0:
+            riding = self._riding_with_scanner(xy, 0)
+            xy, structure = xy[~riding], structure[~riding]
+            riding = self._riding_with_scanner(persons, 1)
+            persons, confidence = persons[~riding], confidence[~riding]
+            person_free, spread = person_free[~riding], spread[~riding]
         hyp = self.hyp
         k = len(hyp)
         pred = self.filter.predict(hyp.state, hyp.t_state, t) if k else np.zeros((0, 2))
@@ -535,6 +557,8 @@ class HypothesisTracker:
             ready &= walked
         if c.ride_along_speed > 0:
             ready &= ~self._riding_along(hyp, blobs, t)
+        if c.confirm_time > 0:
+            ready &= t - hyp.born >= c.confirm_time
         if c.confirm_min_speed > 0:
             ready &= (hyp.velocity ** 2).sum(axis=1) >= c.confirm_min_speed ** 2
         if c.confirm_min_travel > 0:
@@ -549,7 +573,7 @@ class HypothesisTracker:
         self.hyp = hyp
         self.prev_xy, self.prev_stamp = xy, t
         self.recent.append((t, xy, persons))
-        self.prev_origin = np.asarray(blobs.origin, dtype=float)[:2]
+        self.prev_origin = self._scanner
         return self._result(t, newly, created, bounded)
 
     def _is_person(self, hyp: HypothesisArrays) -> np.ndarray:
@@ -596,19 +620,73 @@ class HypothesisTracker:
             self.stats['resumed'] += 1
         self.lost = lost[~taken]
 
-    def _riding_along(self, hyp: HypothesisArrays, blobs: Blobs, t: float) -> np.ndarray:
-        """Mask: hypotheses (not persons) moving with the scanner (``ride_along_speed``)."""
-        c = self.config
-        origin = np.asarray(blobs.origin, dtype=float)[:2]
-        prev = getattr(self, 'prev_origin', None)
+    def _scanner_motion(self, t: float):
+        """(velocity (2,), turn rate, speed) of the scanner over the last frame, or None."""
+        prev, origin = self.prev_origin, self._scanner
         if prev is None or self.prev_stamp is None or t <= self.prev_stamp or \
-                not np.isfinite(origin).all():
+                origin.size != 3 or not (np.isfinite(origin).all() and np.isfinite(prev).all()):
+            return None
+        dt = t - self.prev_stamp
+        velocity = (origin[:2] - prev[:2]) / dt
+        turn = math.remainder(origin[2] - prev[2], 2.0 * math.pi) / dt
+        return velocity, turn, float(np.hypot(*velocity))
+
+    def _relative_speed(self, hyp: HypothesisArrays, motion) -> np.ndarray:
+        """Each hypothesis' speed relative to the point of the scanner's rigid frame where it
+        is (the scanner's velocity plus its turn rate times the lever arm)."""
+        velocity, turn, _ = motion
+        arm = hyp.position - self._scanner[:2]
+        rigid = velocity + turn * np.column_stack((-arm[:, 1], arm[:, 0]))
+        return np.hypot(*(hyp.velocity - rigid).T)
+
+    def _riding_along(self, hyp: HypothesisArrays, blobs: Blobs, t: float) -> np.ndarray:
+        """Mask: hypotheses (not persons) moving with the scanner (``ride_along_speed``),
+        by their filtered velocity."""
+        c = self.config
+        motion = self._scanner_motion(t)
+        if motion is None or motion[2] < c.ride_along_min_speed:
             return np.zeros(len(hyp), bool)
-        v_scanner = (origin - prev) / (t - self.prev_stamp)
-        if np.hypot(*v_scanner) < c.ride_along_min_speed:
-            return np.zeros(len(hyp), bool)
-        relative = np.hypot(*(hyp.velocity - v_scanner).T)
-        return (relative < c.ride_along_speed) & ~self._is_person(hyp)
+        return (self._relative_speed(hyp, motion) < c.ride_along_speed) & ~self._is_person(hyp)
+
+    def _riding_with_scanner(self, xy: np.ndarray, kind: int) -> np.ndarray:
+        """Mask: measurements (motion blobs: kind 0, people: 1) within ``ride_along_reach`` of
+        the scanner that kept their place in its frame since the previous frame (a
+        measurement of that kind within half their world displacement of the same
+        scanner-frame place) while they moved at least ``RIDE_MIN_TRAVEL`` in the world: the
+        robot's own body, before the self-mask has learnt it. Remembers this frame's."""
+        local = self._to_scanner(xy)
+        before, pose = self._ride[kind], self.prev_origin
+        self._ride[kind] = local
+        out = np.zeros(xy.shape[0], bool)
+        if not xy.shape[0] or before.shape[0] == 0 or pose is None:
+            return out
+        near = (local ** 2).sum(axis=1) <= self.config.ride_along_reach ** 2
+        if not near.any():
+            return out
+        in_scanner = pairwise_distances(local[near], before)
+        in_world = pairwise_distances(xy[near], self._from_scanner(before, pose))
+        with np.errstate(invalid='ignore'):
+            out[near] = ((in_world >= RIDE_MIN_TRAVEL) & (in_scanner < 0.5 * in_world)).any(axis=1)
+        return out
+
+    @staticmethod
+    def _from_scanner(local: np.ndarray, pose) -> np.ndarray:
+        """Scanner-frame points (k, 2) of scanner ``pose`` in the odometry frame."""
+        if pose is None or np.asarray(pose).size != 3:
+            return np.full_like(local, np.nan)
+        x, y, th = (float(v) for v in pose)
+        c, s = math.cos(th), math.sin(th)
+        return np.column_stack((x + c * local[:, 0] - s * local[:, 1],
+                                y + s * local[:, 0] + c * local[:, 1]))
+
+    def _to_scanner(self, xy: np.ndarray) -> np.ndarray:
+        """Odometry-frame points (k, 2) in the current scanner frame."""
+        x, y, th = self._scanner if self._scanner.size == 3 else (0.0, 0.0, 0.0)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+            return np.full_like(xy, np.nan)
+        c, s = math.cos(th), math.sin(th)
+        d = xy - (x, y)
+        return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
 
     def _result(self, t, newly, created, bounded) -> FrameResult:
         return FrameResult(stamp=t, hypotheses=self.hyp, newly_confirmed=newly,
@@ -878,6 +956,7 @@ class HypothesisTracker:
         od[:, _SAMPLES] = samples[group[rows]]
         od[:, _BORN] = data[src, _BORN]
         od[:, _START] = data[src, _START]
+
         # A group with any member not started by a person standing where something always
         # stood carries no such restriction.
         open_ = np.zeros(k, bool)

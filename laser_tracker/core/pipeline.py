@@ -38,13 +38,14 @@ from laser_tracker.core.hypotheses import HypothesisArrays, HypothesisConfig
 from laser_tracker.core.kalman import KalmanConfig
 from laser_tracker.core.person_detector import PersonDetectorConfig
 from laser_tracker.core.scan import Scan
+from laser_tracker.core.self_mask import SelfMaskConfig
 from laser_tracker.core.stages import Detection, Detector, EgoMotion, StampedPose, Tracker
 
 
 # ---------------------------------------------------------------------------- config
 
 NODES: dict[str, tuple[str, ...]] = {
-    'ego_motion': ('ego_motion',),
+    'ego_motion': ('ego_motion', 'self_mask'),
     'detection': ('grid', 'difference', 'blobs', 'person_detector'),
     'tracking': ('hypotheses', 'kalman'),
 }
@@ -55,6 +56,7 @@ class PipelineConfig:
     """Every section of the pipeline; ROS parameter form: see :data:`NODES`."""
 
     ego_motion: EgoMotionConfig = field(default_factory=EgoMotionConfig)
+    self_mask: SelfMaskConfig = field(default_factory=SelfMaskConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     difference: DifferenceConfig = field(default_factory=DifferenceConfig)
     blobs: BlobConfig = field(default_factory=BlobConfig)
@@ -128,7 +130,7 @@ class Pipeline:
         c = self.config
         self.profile = profile
         self.times = {s: 0.0 for s in STAGES}
-        self.ego = EgoMotion(c.ego_motion, odom_wait)
+        self.ego = EgoMotion(c.ego_motion, odom_wait, self_mask=c.self_mask)
         self.detector = Detector(c.grid, c.difference, c.blobs, c.person_detector,
                                  times=self.times if profile else None)
         self.tracker = Tracker(c.hypotheses, c.kalman)

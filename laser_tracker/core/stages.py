@@ -28,6 +28,7 @@ unrelated.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import re
@@ -51,6 +52,7 @@ from laser_tracker.core.kalman import KalmanConfig
 from laser_tracker.core.person_detector import (DetectorModelError, PersonDetector,
                                                 PersonDetectorConfig)
 from laser_tracker.core.scan import Scan
+from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
 from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, EventLog, OdometryWait,
                                        StreamRules)
 
@@ -72,6 +74,8 @@ class StampedPose:
     ``motion_covariance``; ``pose_covariance``: the pose's covariance in the odometry frame
     (motion covariances accumulated); ``quality``: what the detection gate reads.
     ``stamp_ns``: the scan's exact stamp when known (messages are restamped with it).
+    ``body``: per beam of the scan, the farthest range of the robot's own body (NaN: none;
+    ``core.self_mask``): detection masks those returns as ego-motion did.
     """
 
     stamp: float
@@ -87,6 +91,7 @@ class StampedPose:
     child_frame_id: str = 'laser'
     stamp_ns: int | None = None
     estimate: EgoMotionEstimate | None = field(default=None, repr=False)
+    body: np.ndarray | None = field(default=None, repr=False)
 
 
 class EgoMotion:
@@ -98,11 +103,14 @@ class EgoMotion:
     release waiting scans too. A pose is None for a scan that was skipped or got no pose.
     Stream rules: an invalid or duplicate scan stamp is skipped; time going backwards
     restarts the estimator (the next pose says ``restarted``); non-finite odometry is skipped.
+    The robot's own body (``core.self_mask``) is masked before the scan is matched, and
+    learnt from every scan that got a pose.
     """
 
     def __init__(self, config: EgoMotionConfig | None = None, odom_wait: float = 0.0,
-                 frame_id: str = 'odom'):
+                 frame_id: str = 'odom', self_mask: SelfMaskConfig | None = None):
         self.config = config or EgoMotionConfig()
+        self.self_mask = self._new_self_mask(self_mask or SelfMaskConfig())
         self.frame_id = frame_id
         self.events = EventLog(log, 'ego-motion: ')
         self.estimator = EgoMotionEstimator(self.config)
@@ -153,12 +161,22 @@ class EgoMotion:
         self._pose_cov = np.zeros((3, 3))
         self._restart_pending = True
 
-    def reconfigure(self, config: EgoMotionConfig, odom_wait: float | None = None) -> None:
+    def _new_self_mask(self, config: SelfMaskConfig) -> SelfMask:
+        c = self.config
+        return SelfMask(config, (c.mount_x, c.mount_y, c.mount_yaw))
+
+    def reconfigure(self, config: EgoMotionConfig, odom_wait: float | None = None,
+                    self_mask: SelfMaskConfig | None = None) -> None:
         """New parameters from the next scan: the estimator is rebuilt (its map and pose chain
-        restart, which downstream stages see as a restart), odometry history is kept."""
+        restart, which downstream stages see as a restart), odometry history is kept; a new
+        self-mask configuration (or mount) starts the learnt body afresh."""
         if odom_wait is not None:
             self.wait.max_wait = float(odom_wait)
-        if config == self.config:
+        changed = config != self.config
+        if self_mask is not None and (changed or self_mask != self.self_mask.config):
+            self.config = config
+            self.self_mask = self._new_self_mask(self_mask)
+        if not changed:
             return
         odometry = self.estimator.odometry
         self.config = config
@@ -177,7 +195,10 @@ class EgoMotion:
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
-        est = self.estimator.update(scan)
+        received = scan
+        scan, _ = self.self_mask.apply(scan)
+        body = self.self_mask.ranges
+        est = self.estimator.update(_without(scan, self.self_mask.near_surfaces(scan)))
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
         if not est.ok or not np.isfinite(pose).all():
@@ -185,6 +206,7 @@ class EgoMotion:
             self.events.note('no pose', _generic(est.reason))
             return None
         self.rules.accept(scan.stamp)
+        self.self_mask.learn(received, est.motion)
         quality = pose_quality(est)
         if self._restart_pending:
             quality = PoseQuality(quality.variance, quality.unmatched, True)
@@ -202,7 +224,7 @@ class EgoMotion:
                            quality=quality, source=str(est.source), reason=str(est.reason),
                            dt=float(est.dt), frame_id=self.frame_id,
                            child_frame_id=scan.frame_id, stamp_ns=scan.stamp_ns,
-                           estimate=est)
+                           estimate=est, body=body if np.isfinite(body).any() else None)
 
 
 # ------------------------------------------------------------------------------- detection
@@ -319,6 +341,7 @@ class Detector:
             self.events.note('history dropped', 'the ego-motion pose chain restarted')
             self.reset()
         self.rules.accept(scan.stamp)
+        scan = _without_body(scan, pose.body)
         det = self._detect(scan, np.asarray(pose.pose, dtype=float), want_grids,
                            pose.quality)
         self._people_and_segments(scan, np.asarray(pose.pose, dtype=float), det)
@@ -569,6 +592,23 @@ class Head:
                              'tracks')
             return None
         return self.pointer.update(stamp, self.pose.pose, tracks)
+
+
+def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:
+    """``scan`` with the returns of the robot's body (``StampedPose.body``) as NaN."""
+    if body is None or body.size != scan.n_beams:
+        return scan
+    with np.errstate(invalid='ignore'):
+        return _without(scan, scan.ranges <= body)
+
+
+def _without(scan: Scan, masked: np.ndarray) -> Scan:
+    """``scan`` with the ``masked`` beams as NaN (no measurement; the same scan if none)."""
+    if not masked.any():
+        return scan
+    ranges = scan.ranges.copy()
+    ranges[masked] = np.nan
+    return dataclasses.replace(scan, ranges=ranges)
 
 
 def _generic(reason: str) -> str:

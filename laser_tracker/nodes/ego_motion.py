@@ -14,7 +14,8 @@ publishes, stamped exactly as the scan:
 The node is convert -> ``core.stages.EgoMotion`` -> convert: the stage holds a scan until
 the odometry covering it has arrived (at most ``odom_wait`` s of this node's clock; when
 odometry stops, that is paid once) and owns the stream rules. Parameters: ``odom_frame``,
-``odom_wait`` and ``ego_motion.*``, all changeable at run time.
+``odom_wait``, ``ego_motion.*`` and ``self_mask.*`` (the robot's own body in the scans), all
+changeable at run time.
 """
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ class EgoMotionNode(Node):
         super().__init__('ego_motion', **kwargs)
         self.params = LiveParameters(self, 'ego_motion', self.apply_parameters)
         node, section = self.params.sections[''], self.params.sections['ego_motion']
-        self.stage = EgoMotion(section, node.odom_wait, node.odom_frame)
+        self.stage = EgoMotion(section, node.odom_wait, node.odom_frame,
+                               self.params.sections['self_mask'])
         self.factory = ros_factory()
         self._mount_checked = False
         self.pose_pub = self.create_publisher(Odometry, 'ego_motion', common.RELIABLE_OUT)
@@ -52,7 +54,7 @@ class EgoMotionNode(Node):
     def apply_parameters(self, sections: dict) -> None:
         node = sections['']
         self.stage.frame_id = node.odom_frame
-        self.stage.reconfigure(sections['ego_motion'], node.odom_wait)
+        self.stage.reconfigure(sections['ego_motion'], node.odom_wait, sections['self_mask'])
 
     def now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

@@ -1,0 +1,268 @@
+"""The robot's own body in its scans: returns that are part of the platform, never objects.
+
+A scanner with a wide field of view sees parts of the robot that carries it (the chassis, a
+mast, a bumper, cables). Those returns keep their place in the scanner's frame while the
+robot moves, so to the difference map they look like something that follows the robot, and
+to the person detector a cable can look like a leg. Two sources say which returns are the
+body; a masked return reads NaN ("no measurement", REP 117) for every later stage, so it
+is neither matched, nor an obstacle, nor free space, nor a segment:
+
+* **learnt online** (``learn``): a return within ``reach`` of the scanner, on a surface
+  that lies entirely within reach (a wall the robot drives along runs out of reach; a body
+  part does not), which keeps its range while the world moves past it by ``travel`` metres
+  (the distance a static point there would have moved in the scanner's frame, summed over
+  the scans) is the body. No per-robot tuning: it follows from the motion. A person beside
+  a moving robot swings their legs and never keeps a range that long; a standing robot
+  learns nothing.
+* **a footprint** (``footprint``): a polygon in the platform's base frame, as laser_filters'
+  box filter and nav2's ``footprint`` take it: returns inside it are the body.
+
+Until the body is learnt it is in every scan, and a scan matcher that sees it finds that the
+robot has not moved (the body matches itself): with ``learn`` on, the scan match also leaves
+out every surface that lies entirely within reach (:meth:`SelfMask.near_surfaces`), so the
+ego-motion, and with it the learning, is right from the first metre.
+
+The mask of a beam is a range: returns up to it (plus ``tolerance``) are the body; a return
+beyond it is the world seen past the body, so a person standing next to the robot is never
+hidden. A learnt range also masks the beams within ``EDGE_BEAMS`` of it (a body part's edge
+shifts by a beam or two). A beam learnt as body that keeps seeing only farther returns while the world moves
+past it by ``10 x travel`` is given up (what stood there was not the body).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from laser_tracker.config import ConfigError, param
+from laser_tracker.core.scan import Scan, beam_table
+
+#: Points closer than this (m) along the scan are one surface (for "lies within reach").
+SURFACE_JUMP = 0.15
+#: A beam learnt as body is given up after seeing only the world beyond it while the world
+#: moved past by this many times ``travel``.
+FORGET_FACTOR = 10.0
+#: The edge of a body part shifts by a beam or two between scans (vibration, a cable, the
+#: beam's footprint): a learnt body range also masks the beams this close to it.
+EDGE_BEAMS = 3
+
+
+@dataclass(frozen=True)
+class SelfMaskConfig:
+    """Section ``self_mask`` of node ``ego_motion``: the robot's own body in the scans."""
+
+    learn: bool = param(
+        True, 'Learn which returns are the robot\'s own body while it moves: returns within '
+        'reach that keep their range while the world moves past them by travel metres. '
+        'false = only the footprint (paper: nothing is masked).')
+    reach: float = param(
+        1.0, 'Largest range (m) of a return that can be the robot\'s body (how far the '
+        'robot extends from the scanner).', min=0.05, max=10.0)
+    travel: float = param(
+        2.0, 'A return is the body once the world has moved past it by this much (m, in '
+        'the scanner\'s frame, summed over scans) while its range stayed within tolerance.',
+        min=0.1, max=100.0)
+    tolerance: float = param(
+        0.05, 'Range tolerance (m) of "keeps its range", and margin of the mask beyond the '
+        'body\'s learnt range (range noise of the scanner, a few sigma).', min=0.0, max=1.0)
+    footprint: str = param(
+        '', 'The robot\'s footprint in its base frame, as nav2 writes it: '
+        '"[[x1, y1], [x2, y2], [x3, y3], ...]" (m, at least 3 corners); returns inside it '
+        'are the body. \'\' = none.')
+
+    def __post_init__(self):
+        footprint_polygon(self.footprint)     # a malformed polygon is refused here
+
+
+def footprint_polygon(text: str) -> np.ndarray | None:
+    """The footprint parameter as (k, 2) corners, None when empty; ConfigError if malformed."""
+    if not text.strip():
+        return None
+    import yaml
+
+    where = 'self_mask.footprint'
+    try:
+        value = yaml.safe_load(text)
+        corners = np.asarray(value, dtype=float)
+    except (yaml.YAMLError, TypeError, ValueError):
+        raise ConfigError(f'{where}: not a list of [x, y] corners: {text!r} (example: '
+                          f'"[[0.3, 0.25], [-0.3, 0.25], [-0.3, -0.25], [0.3, -0.25]]")') \
+            from None
+    if corners.ndim != 2 or corners.shape[1] != 2 or corners.shape[0] < 3:
+        raise ConfigError(f'{where}: needs at least 3 corners [x, y], got {text!r}')
+    if not np.isfinite(corners).all():
+        raise ConfigError(f'{where}: corners must be finite, got {text!r}')
+    x, y = corners[:, 0], corners[:, 1]
+    if abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) < 1e-9:
+        raise ConfigError(f'{where}: the corners enclose no area: {text!r}')
+    return corners
+
+
+def inside_polygon(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Mask (k,): points (k, 2) inside the polygon (even-odd rule)."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    x0, y0 = corners[:, 0], corners[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    crosses = (y0 > y) != (y1 > y)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        at = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return (np.count_nonzero(crosses & (x < at), axis=1) % 2) == 1
+
+
+class SelfMask:
+    """The body mask of one scan stream: ``apply(scan)`` masks, ``learn(scan, motion)`` learns.
+
+    ``mount`` = (x, y, yaw) of the scanner on the platform (for the footprint). ``limits``
+    (beams,) is the current mask: the farthest range (m) of the body per beam, NaN where the
+    beam does not see the body.
+    """
+
+    def __init__(self, config: SelfMaskConfig | None = None, mount=(0.0, 0.0, 0.0)):
+        self.config = config or SelfMaskConfig()
+        self.mount = tuple(float(v) for v in mount)
+        corners = footprint_polygon(self.config.footprint)
+        if corners is not None:             # the footprint in the scanner frame
+            x, y, yaw = self.mount
+            c, s = math.cos(yaw), math.sin(yaw)
+            d = corners - (x, y)
+            corners = np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
+        self._footprint = corners
+        self._geometry = None
+        self.limits = np.zeros(0)
+
+    # ------------------------------------------------------------------ state
+    def _fit(self, scan: Scan) -> None:
+        """Per-beam state for the scan's geometry (a new geometry starts afresh)."""
+        key = (scan.angle_min, scan.angle_increment, scan.n_beams)
+        if key == self._geometry:
+            return
+        self._geometry = key
+        n = scan.n_beams
+        self.anchor = np.full(n, np.nan)     # the range the beam's return keeps
+        self.kept = np.zeros(n)              # world travel past it while it kept that range
+        self.body = np.full(n, np.nan)       # learnt body range per beam
+        self.beyond = np.zeros(n)            # world travel seen only beyond the body
+        self.limits = self._footprint_limits(scan)
+
+    def _footprint_limits(self, scan: Scan) -> np.ndarray:
+        """Per beam, the range at which it leaves the footprint (NaN: it does not cross it)."""
+        n = scan.n_beams
+        if self._footprint is None:
+            return np.full(n, np.nan)
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), n)
+        # Sample each beam finely out to the footprint's farthest corner.
+        far = float(np.hypot(*self._footprint.T).max())
+        steps = np.arange(0.005, far + 0.01, 0.005)
+        pts = np.stack((np.outer(cos, steps), np.outer(sin, steps)), axis=-1).reshape(-1, 2)
+        inside = inside_polygon(pts, self._footprint).reshape(n, steps.size)
+        last = np.where(inside.any(axis=1),
+                        steps[inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1)],
+                        np.nan)
+        return last
+
+    def reset(self) -> None:
+        self._geometry = None
+        self.limits = np.zeros(0)
+
+    # ------------------------------------------------------------------ per scan
+    def mask(self, scan: Scan) -> np.ndarray:
+        """Beams of ``scan`` whose return is the body."""
+        self._fit(scan)
+        with np.errstate(invalid='ignore'):
+            return scan.ranges <= self.ranges          # NaN: False
+
+    def apply(self, scan: Scan) -> tuple[Scan, np.ndarray]:
+        """``scan`` with its body returns as NaN (a copy when any), and the mask."""
+        masked = self.mask(scan)
+        if not masked.any():
+            return scan, masked
+        ranges = scan.ranges.copy()
+        ranges[masked] = np.nan
+        out = Scan(stamp=scan.stamp, ranges=ranges, angle_min=scan.angle_min,
+                   angle_increment=scan.angle_increment, range_min=scan.range_min,
+                   range_max=scan.range_max, time_increment=scan.time_increment,
+                   scan_time=scan.scan_time, frame_id=scan.frame_id, stamp_ns=scan.stamp_ns)
+        return out, masked
+
+    def near_surfaces(self, scan: Scan) -> np.ndarray:
+        """Beams whose return lies on a surface entirely within ``reach`` (maybe the body, or
+        something riding along: not for the scan match); none when ``learn`` is off."""
+        c = self.config
+        r = scan.ranges
+        if not c.learn:
+            return np.zeros(r.size, bool)
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
+                                 scan.n_beams)
+        with np.errstate(invalid='ignore'):
+            hit = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
+        rr = np.where(hit, r, 0.0)
+        return hit & (rr <= c.reach) & _surface_within(hit, r, rr * cos, rr * sin, c.reach)
+
+    def learn(self, scan: Scan, motion) -> None:
+        """Learn from ``scan`` (as received) and the scanner's motion since the previous
+        scan (its pose in the previous scanner frame)."""
+        c = self.config
+        if not c.learn:
+            return
+        self._fit(scan)
+        x, y, th = (float(v) for v in motion)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+            return
+        r = scan.ranges
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
+                                 scan.n_beams)
+        with np.errstate(invalid='ignore'):
+            hit = np.isfinite(r) & (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
+        px, py = np.where(hit, r, 0.0) * cos, np.where(hit, r, 0.0) * sin
+        # How far a static point at each return moves in the scanner frame over this step.
+        cth, sth = math.cos(th), math.sin(th)
+        qx, qy = px - x, py - y
+        moved = np.hypot(cth * qx + sth * qy - px, -sth * qx + cth * qy - py)
+        near = hit & (r <= c.reach) & _surface_within(hit, r, px, py, c.reach)
+        with np.errstate(invalid='ignore'):
+            kept = near & (np.abs(r - self.anchor) <= c.tolerance)
+        # A beam without a return keeps its evidence (a body part seen at grazing incidence
+        # flickers); a return that moved, or lies on the world, starts afresh.
+        self.kept = np.where(kept, self.kept + moved, np.where(hit, 0.0, self.kept))
+        self.anchor = np.where(near & ~kept, r, np.where(hit & ~near, np.nan, self.anchor))
+        learnt = self.kept >= c.travel
+        self.body = np.where(learnt, np.fmax(self.body, self.anchor), self.body)
+        # A learnt beam that sees only the world beyond its body range is given up.
+        with np.errstate(invalid='ignore'):
+            past = hit & (r > self.body + c.tolerance)
+            on_body = hit & (r <= self.body + c.tolerance)
+        self.beyond = np.where(past, self.beyond + moved, np.where(on_body, 0.0, self.beyond))
+        forget = self.beyond >= FORGET_FACTOR * c.travel
+        self.body[forget] = np.nan
+        self.beyond[forget] = 0.0
+
+    @property
+    def ranges(self) -> np.ndarray:
+        """Per beam, the farthest range of a return that is the body (NaN: none): the
+        footprint's, and the learnt body's plus ``tolerance`` (a copy; empty before the first
+        scan)."""
+        if self._geometry is None:
+            return np.zeros(0)
+        body = self.body
+        if np.isfinite(body).any():
+            padded = np.pad(body, EDGE_BEAMS, constant_values=np.nan)
+            n = body.size
+            body = np.fmax.reduce([padded[k:k + n] for k in range(2 * EDGE_BEAMS + 1)])
+        return np.fmax(self.limits, body + self.config.tolerance)
+
+
+def _surface_within(hit: np.ndarray, r: np.ndarray, px: np.ndarray, py: np.ndarray,
+                    reach: float) -> np.ndarray:
+    """Mask: returns whose whole surface lies within ``reach``: the run of returns (beams
+    without a return skipped) in which each lies within SURFACE_JUMP of the previous one."""
+    out = np.zeros(hit.size, bool)
+    idx = np.flatnonzero(hit)
+    if idx.size == 0:
+        return out
+    step = np.hypot(np.diff(px[idx]), np.diff(py[idx]))
+    starts = np.flatnonzero(np.concatenate(([True], step > SURFACE_JUMP)))
+    farthest = np.maximum.reduceat(r[idx], starts)
+    run = np.cumsum(np.isin(np.arange(idx.size), starts)) - 1
+    out[idx] = farthest[run] <= reach
+    return out
