@@ -153,12 +153,12 @@ class RunRecorder:
 
     # ---------------------------------------------------------------- output
     def __enter__(self) -> RunRecorder:
+        if self.path.exists() and not self.options.overwrite:
+            raise LaserTrackerError(f'{self.path}: already exists (use --overwrite to replace '
+                                    'it, or choose another name)')
         try:
             self._bag = BagWriter(self.path, storage=self.options.storage,
                                   overwrite=self.options.overwrite, compress=True).__enter__()
-        except FileExistsError:
-            raise LaserTrackerError(f'{self.path}: already exists (use --overwrite to replace '
-                                    'it, or choose another name)') from None
         except OSError as exc:
             raise LaserTrackerError(f'{self.path}: cannot write the recording here: '
                                     f'{exc.strerror or exc}') from None
