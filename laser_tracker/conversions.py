@@ -140,37 +140,37 @@ class _RosFactory(MessageFactory):
 class _BagFactory(MessageFactory):
     def __init__(self, typestore):
         self.typestore = typestore
+        self._plans: dict[str, list] = {}     # type -> [(field, default maker)]
 
-    def _default(self, desc):
+    def _maker(self, desc):
+        """A function returning a fresh default value for a field of description ``desc``."""
         nodetype, detail = desc
         kind = int(nodetype)
-        if kind == 1:  # BASE
+        if kind == 1:  # BASE: immutable values
             base = detail[0]
-            if base == 'string':
-                return ''
-            if base == 'bool':
-                return False
-            if base.startswith('float'):
-                return 0.0
-            return 0
+            value = '' if base == 'string' else False if base == 'bool' else \
+                0.0 if base.startswith('float') else 0
+            return lambda: value
         if kind == 2:  # NAME
-            return self.make(detail)
-        if kind == 3:  # fixed ARRAY
-            inner, count = detail
-            if int(inner[0]) == 1 and inner[1][0] != 'string':
-                return np.zeros(count, dtype=_numpy_dtype(inner[1][0]))
-            return [self._default(inner) for _ in range(count)]
-        # SEQUENCE
-        inner, _ = detail
+            return lambda: self.make(detail)
+        inner, count = detail
         if int(inner[0]) == 1 and inner[1][0] != 'string':
-            return np.zeros(0, dtype=_numpy_dtype(inner[1][0]))
-        return []
+            dtype = _numpy_dtype(inner[1][0])
+            size = count if kind == 3 else 0      # fixed ARRAY or SEQUENCE
+            return lambda: np.zeros(size, dtype=dtype)
+        if kind == 3:
+            element = self._maker(inner)
+            return lambda: [element() for _ in range(count)]
+        return list
 
     def make(self, type_name: str, **fields):
-        _, fielddefs = self.typestore.fielddefs[type_name]
-        for fname, desc in fielddefs:
+        plan = self._plans.get(type_name)
+        if plan is None:
+            _, fielddefs = self.typestore.fielddefs[type_name]
+            plan = self._plans[type_name] = [(f, self._maker(d)) for f, d in fielddefs]
+        for fname, default in plan:
             if fname not in fields:
-                fields[fname] = self._default(desc)
+                fields[fname] = default()
         return self.typestore.types[type_name](**fields)
 
     def float32_array(self, values):

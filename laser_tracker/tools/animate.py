@@ -19,7 +19,6 @@ the image side in pixels, ``--view`` the half-width of the view in metres.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import shutil
@@ -76,27 +75,19 @@ class Run:
 
 
 def read_run(folder: Path) -> Run:
-    from laser_tracker.tools.evaluate import read_replay
+    """The poses and confirmed tracks of a replay folder (one-line errors for bad files)."""
+    from laser_tracker.tools.evaluate import TRACK_COLUMNS, _read_csv, _track_row, read_replay
 
     replay = read_replay(folder)
-    rows = []
-    path = folder / 'tracks.csv'
-    with path.open(newline='') as fh:
-        for r in csv.DictReader(fh):
-            try:
-                if r.get('confirmed') in ('1', 'true', 'True'):
-                    rows.append((float(r['stamp']), int(r['track_id']), float(r['x']),
-                                 float(r['y']), float(r['vx']), float(r['vy']),
-                                 r.get('kind') or 'object'))
-            except (TypeError, ValueError):
-                continue        # read_replay already warned about malformed rows
-    cols = list(zip(*rows)) if rows else [()] * 7
+    rows = [r for r in _read_csv(folder / 'tracks.csv', TRACK_COLUMNS + ('kind',),
+                                 lambda r: (*_track_row(r[:-1]), r[-1] or 'object')) if r[7]]
+    cols = list(zip(*rows)) if rows else [()] * 9
     order = np.argsort(replay.ego_stamps, kind='stable')
     return Run(replay.ego_stamps[order], replay.ego_poses[order], np.asarray(cols[0], float),
                np.asarray(cols[1], np.int64),
                np.column_stack((cols[2], cols[3])).reshape(-1, 2).astype(float),
                np.column_stack((cols[4], cols[5])).reshape(-1, 2).astype(float),
-               np.asarray(cols[6], dtype=object))
+               np.asarray(cols[8], dtype=object))
 
 
 def scans_source(args, folder: Path) -> tuple[Path, str]:

@@ -308,20 +308,16 @@ class RunRecorder:
         else:
             raise LaserTrackerError('--evaluate: the recording has no ground truth or '
                                     'annotated people to score per frame')
-        written = np.array(self._stamps, dtype=object).reshape(-1, 2)
-        order = np.argsort(written[:, 0].astype(float), kind='stable')
-        scan_stamps = written[order, 0].astype(float)
-        tolerance = 0.25 * median_period(scan_stamps)
-        scan_of_frame = match_stamps(np.asarray(stamps, float), scan_stamps, tolerance)
-        groups = {}
-        for f in np.unique(verdicts.frame):
-            groups[int(f)] = np.flatnonzero(verdicts.frame == f)
+        seconds = np.array([s for s, _ in self._stamps], float)
+        order = np.argsort(seconds, kind='stable')
+        scan_of_frame = match_stamps(np.asarray(stamps, float), seconds[order],
+                                     0.25 * median_period(seconds))
         frames = 0
         for f, k in enumerate(scan_of_frame):
             if k < 0:
                 continue
-            stamp, ns = float(written[order[k], 0]), int(written[order[k], 1])
-            rows = groups.get(f, np.zeros(0, np.intp))
+            stamp, ns = self._stamps[order[k]]
+            rows = np.flatnonzero(verdicts.frame == f)
             kind = verdicts.kind[rows]
             match = rows[np.isin(kind, ('MATCH', 'SWITCH'))]
             msg = evaluation_markers(
