@@ -93,8 +93,8 @@ TOPICS = {
     EVALUATION_TOPIC: 'visualization_msgs/msg/MarkerArray',
 }
 
-#: Grids on every N-th scan by default: within 3 times the input's size on the leg_tracker
-#: person-following recording (README.md, "Look at it").
+#: Grids on every N-th scan by default: on every scan they would be more than half of a
+#: recording (on leg_tracker's person_following: 15 MB with all, 6.9 MB with every 10th).
 DEFAULT_GRID_EVERY = 10
 GRID_CHOICES = 'every, none or N (every N-th scan)'
 
