@@ -148,7 +148,7 @@ class RunRecorder:
         self.mount = np.zeros(3)
         self.resolution = 0.1
         self._truth: tuple[np.ndarray, np.ndarray] | None = None   # platform truth, scanner
-        self._annotations = None
+        self._annotations = None     # (annotations.Annotations, {scan index: its rows})
         self._passthrough: set[str] = set()
 
     # ---------------------------------------------------------------- output
@@ -207,9 +207,8 @@ class RunRecorder:
             from laser_tracker.tools.bag import read_scan_times
 
             ann = read_annotations(bag, ANNOTATION_TOPIC, read_scan_times(bag, scan_topic))
-            self._annotations = {int(k): np.flatnonzero(ann.scan == k)
-                                 for k in np.unique(ann.scan)}
-            self._annotation_rows = ann
+            self._annotations = (ann, {int(k): np.flatnonzero(ann.scan == k)
+                                       for k in np.unique(ann.scan)})
 
     @property
     def passthrough_topics(self) -> list[str]:
@@ -231,8 +230,8 @@ class RunRecorder:
         out.header.frame_id = frame
         self._write(SCAN_TOPIC, restamp_ns(FACTORY, out, scan.stamp_ns), scan.stamp_ns)
         if self._annotations is not None:
-            rows = self._annotations.get(index, np.zeros(0, np.intp))
-            a = self._annotation_rows
+            a, at_scan = self._annotations
+            rows = at_scan.get(index, np.zeros(0, np.intp))
             people = [MovingObject(int(a.obj_id[r]), float(a.x[r]), float(a.y[r]),
                                    extra={'kind': 'person'}) for r in rows]
             gt = objects_to_marker_array(FACTORY, people, scan.stamp, frame, 'ground_truth',
