@@ -103,6 +103,9 @@ class MessageFactory:
     def float32_array(self, values) -> Any:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def int8_array(self, values) -> Any:  # pragma: no cover - interface
+        raise NotImplementedError
+
     def byte(self, value: int) -> Any:
         """A ``byte`` field's value (rclpy wants a 1-byte ``bytes``, rosbags an int)."""
         return bytes([int(value)])
@@ -128,45 +131,53 @@ class _RosFactory(MessageFactory):
         out.frombytes(np.ascontiguousarray(values, dtype=np.float32).tobytes())
         return out
 
+    def int8_array(self, values):
+        out = array.array('b')
+        out.frombytes(np.ascontiguousarray(values, dtype=np.int8).tobytes())
+        return out
+
 
 class _BagFactory(MessageFactory):
     def __init__(self, typestore):
         self.typestore = typestore
+        self._plans: dict[str, list] = {}     # type -> [(field, default maker)]
 
-    def _default(self, desc):
+    def _maker(self, desc):
+        """A function returning a fresh default value for a field of description ``desc``."""
         nodetype, detail = desc
         kind = int(nodetype)
-        if kind == 1:  # BASE
+        if kind == 1:  # BASE: immutable values
             base = detail[0]
-            if base == 'string':
-                return ''
-            if base == 'bool':
-                return False
-            if base.startswith('float'):
-                return 0.0
-            return 0
+            value = '' if base == 'string' else False if base == 'bool' else \
+                0.0 if base.startswith('float') else 0
+            return lambda: value
         if kind == 2:  # NAME
-            return self.make(detail)
-        if kind == 3:  # fixed ARRAY
-            inner, count = detail
-            if int(inner[0]) == 1 and inner[1][0] != 'string':
-                return np.zeros(count, dtype=_numpy_dtype(inner[1][0]))
-            return [self._default(inner) for _ in range(count)]
-        # SEQUENCE
-        inner, _ = detail
+            return lambda: self.make(detail)
+        inner, count = detail
         if int(inner[0]) == 1 and inner[1][0] != 'string':
-            return np.zeros(0, dtype=_numpy_dtype(inner[1][0]))
-        return []
+            dtype = _numpy_dtype(inner[1][0])
+            size = count if kind == 3 else 0      # fixed ARRAY or SEQUENCE
+            return lambda: np.zeros(size, dtype=dtype)
+        if kind == 3:
+            element = self._maker(inner)
+            return lambda: [element() for _ in range(count)]
+        return list
 
     def make(self, type_name: str, **fields):
-        _, fielddefs = self.typestore.fielddefs[type_name]
-        for fname, desc in fielddefs:
+        plan = self._plans.get(type_name)
+        if plan is None:
+            _, fielddefs = self.typestore.fielddefs[type_name]
+            plan = self._plans[type_name] = [(f, self._maker(d)) for f, d in fielddefs]
+        for fname, default in plan:
             if fname not in fields:
-                fields[fname] = self._default(desc)
+                fields[fname] = default()
         return self.typestore.types[type_name](**fields)
 
     def float32_array(self, values):
         return np.ascontiguousarray(values, dtype=np.float32)
+
+    def int8_array(self, values):
+        return np.ascontiguousarray(values, dtype=np.int8).reshape(-1)
 
     def byte(self, value: int) -> Any:
         return int(value)
@@ -795,3 +806,160 @@ def tracks_to_objects(tracks, confirmed_only: bool = True) -> list[MovingObject]
              'covariance': [round(float(c[0, 0]), 6), round(float(c[0, 1]), 6),
                             round(float(c[1, 1]), 6)]}))
     return out
+
+
+def tracker_msgs(factory: MessageFactory, tracks, stamp: float, frame_id: str,
+                 stamp_ns: int | None = None):
+    """The tracking node's outputs for one frame, stamped exactly (``stamp_ns``):
+    ``(tracks, hypotheses, tracks/markers)``: the confirmed tracks and every hypothesis in the
+    moving-object schema, and the markers RViz draws (:func:`track_markers`)."""
+    f = factory
+    confirmed = objects_to_marker_array(f, tracks_to_objects(tracks, True), stamp, frame_id,
+                                        'tracks')
+    hypotheses = objects_to_marker_array(f, tracks_to_objects(tracks, False), stamp, frame_id,
+                                         'hypotheses', color=(0.6, 0.6, 0.6, 0.5))
+    markers = track_markers(f, tracks, stamp, frame_id)
+    return tuple(restamp_ns(f, msg, stamp_ns) for msg in (confirmed, hypotheses, markers))
+
+
+# -------------------------------------------------------------------------- what people see
+
+#: Colour (r, g, b) of a track's kind wherever tracks are drawn (RViz markers, animations).
+KIND_COLOURS = {'person': (0.85, 0.15, 0.75), 'object': (0.1, 0.55, 0.95)}
+#: Opacity of a tentative (not yet confirmed) hypothesis's markers.
+TENTATIVE_ALPHA = 0.4
+MARKER_LINE_LIST = 5
+MARKER_SPHERE_LIST = 7
+MARKER_TEXT = 9
+TEXT_HEIGHT = 0.3   # m
+
+
+def track_label(track_id: int, kind: str, speed: float, confirmed: bool) -> str:
+    """``"7 person 1.2 m/s"``; a ``?`` after the id while the hypothesis is tentative."""
+    return f'{int(track_id)}{"" if confirmed else "?"} {kind} {speed:.1f} m/s'
+
+
+def _point(f: MessageFactory, x: float, y: float, z: float = 0.0):
+    return f.make('geometry_msgs/msg/Point', x=float(x), y=float(y), z=float(z))
+
+
+def _at(f: MessageFactory, x: float, y: float, z: float = 0.0):
+    return f.make('geometry_msgs/msg/Pose', position=_point(f, x, y, z),
+                  orientation=f.make('geometry_msgs/msg/Quaternion', x=0.0, y=0.0, z=0.0,
+                                     w=1.0))
+
+
+def _rgba(f: MessageFactory, rgb, alpha: float):
+    return f.make('std_msgs/msg/ColorRGBA', r=float(rgb[0]), g=float(rgb[1]), b=float(rgb[2]),
+                  a=float(alpha))
+
+
+def _scale(f: MessageFactory, x: float, y: float, z: float):
+    return f.make('geometry_msgs/msg/Vector3', x=float(x), y=float(y), z=float(z))
+
+
+def track_markers(factory: MessageFactory, tracks, stamp: float, frame_id: str):
+    """``core.hypotheses.Tracks`` -> the ``tracks/markers`` MarkerArray that RViz and Foxglove
+    draw (for people; programs read ``tracks``).
+
+    A DELETEALL, then per hypothesis a TEXT_VIEW_FACING label (ns ``track_labels``, id = the
+    track id, text :func:`track_label`, 0.3 m above the track) and a velocity ARROW (ns
+    ``track_velocities``, from the position to where the track will be in one second), in
+    the colour of its kind (:data:`KIND_COLOURS`): opaque once confirmed, translucent
+    (:data:`TENTATIVE_ALPHA`) while tentative.
+    """
+    f = factory
+    hdr = header(f, stamp, frame_id)
+    markers = [f.make('visualization_msgs/msg/Marker', header=hdr, ns='track_labels', id=0,
+                      action=MARKER_DELETEALL)]
+    for i in range(len(tracks)):
+        tid, (x, y), (vx, vy) = int(tracks.track_id[i]), tracks.position[i], tracks.velocity[i]
+        confirmed, kind = bool(tracks.confirmed[i]), str(tracks.kind[i])
+        rgb = KIND_COLOURS.get(kind, (0.6, 0.6, 0.6))
+        alpha = 1.0 if confirmed else TENTATIVE_ALPHA
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
+            ns='track_labels', id=tid, type=MARKER_TEXT, action=MARKER_ADD,
+            pose=_at(f, x, y, TEXT_HEIGHT), scale=_scale(f, 0.0, 0.0, TEXT_HEIGHT),
+            color=_rgba(f, rgb, alpha),
+            text=track_label(tid, kind, math.hypot(float(vx), float(vy)), confirmed)))
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
+            ns='track_velocities', id=tid, type=MARKER_ARROW, action=MARKER_ADD,
+            pose=_at(f, 0.0, 0.0), scale=_scale(f, 0.06, 0.15, 0.15),
+            color=_rgba(f, rgb, alpha),
+            points=[_point(f, x, y), _point(f, float(x) + float(vx), float(y) + float(vy))]))
+    return f.make('visualization_msgs/msg/MarkerArray', markers=markers)
+
+
+#: OccupancyGrid value of each cell state of ``core.grid`` (UNKNOWN, FREE, OCCUPIED).
+OCCUPANCY_OF_CELL = np.array([-1, 0, 100], np.int8)
+#: Difference map values: a change by Eq. 1 that no blob reports, a cell that made a blob.
+DIFFERENCE_UNREPORTED, DIFFERENCE_REPORTED = 50, 100
+
+
+def difference_occupancy(detection) -> np.ndarray:
+    """A ``core.stages.Detection`` computed with grids -> the difference map in OccupancyGrid
+    values (``[ix, iy]``): -1 where the previous grid had no valid data, 0 no change,
+    :data:`DIFFERENCE_UNREPORTED` (50) a change by Eq. 1 that the history, the static
+    background or the pose gate discarded, :data:`DIFFERENCE_REPORTED` (100) the cells that
+    made the blobs."""
+    from laser_tracker.core.grid import UNKNOWN
+
+    grid = detection.grid
+    out = np.zeros(grid.shape, np.int8)
+    if detection.previous is None:
+        out[:] = -1
+        return out
+    out[detection.previous == UNKNOWN] = -1
+    if detection.difference is not None:
+        out[detection.difference] = DIFFERENCE_UNREPORTED
+    if detection.changed_cells is not None and detection.changed_cells.size:
+        out.reshape(-1)[detection.changed_cells] = DIFFERENCE_REPORTED
+    return out
+
+
+def occupancy_grid_msg(factory: MessageFactory, values: np.ndarray, resolution: float,
+                       stamp: float, frame_id: str):
+    """A square grid in the layout of ``core.grid`` (``values[ix, iy]``, ``ix`` along the
+    frame's x, centred on the frame's origin), in OccupancyGrid values (-1 unknown, 0..100),
+    -> nav_msgs/OccupancyGrid (row-major, x fastest: ``data[iy * n + ix]``; origin = the
+    corner of cell (0, 0))."""
+    f = factory
+    n = int(values.shape[0])
+    half = n * float(resolution) / 2.0
+    hdr = header(f, stamp, frame_id)
+    info = f.make('nav_msgs/msg/MapMetaData', map_load_time=hdr.stamp,
+                  resolution=float(resolution), width=n, height=n, origin=_at(f, -half, -half))
+    return f.make('nav_msgs/msg/OccupancyGrid', header=hdr, info=info,
+                  data=f.int8_array(np.ascontiguousarray(np.asarray(values, np.int8).T)))
+
+
+#: Colour (r, g, b) of each verdict of the per-frame evaluation markers.
+EVALUATION_COLOURS = {'matches': (0.1, 0.8, 0.1), 'misses': (0.9, 0.1, 0.1),
+                      'false_positives': (1.0, 0.55, 0.0)}
+
+
+def evaluation_markers(factory: MessageFactory, stamp: float, frame_id: str, matches,
+                       misses, false_positives):
+    """One frame of CLEAR MOT verdicts as a MarkerArray: a DELETEALL, then a green LINE_LIST
+    (ns ``matches``) from each matched track to its object (``matches`` (K, 4): track x, y,
+    object x, y), red spheres (ns ``misses``) on the missed objects and orange spheres (ns
+    ``false_positives``) on the false-positive tracks (``misses``, ``false_positives``:
+    (M, 2) positions). An empty group has no marker."""
+    f = factory
+    markers = [f.make('visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
+                      ns='matches', id=0, action=MARKER_DELETEALL)]
+    groups = (('matches', MARKER_LINE_LIST, np.asarray(matches, float).reshape(-1, 2), 0.05),
+              ('misses', MARKER_SPHERE_LIST, np.asarray(misses, float).reshape(-1, 2), 0.35),
+              ('false_positives', MARKER_SPHERE_LIST,
+               np.asarray(false_positives, float).reshape(-1, 2), 0.35))
+    for ns, kind, points, size in groups:
+        if not points.shape[0]:
+            continue
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns=ns, id=0,
+            type=kind, action=MARKER_ADD, pose=_at(f, 0.0, 0.0),
+            scale=_scale(f, size, size, size), color=_rgba(f, EVALUATION_COLOURS[ns], 0.9),
+            points=[_point(f, x, y) for x, y in points]))
+    return f.make('visualization_msgs/msg/MarkerArray', markers=markers)

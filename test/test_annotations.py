@@ -190,12 +190,19 @@ def test_clear_mot_walking_ignores_standing_people():
     people = frames_of([(f, 2, 1.0, 0.0) for f in range(10)])
     care = np.arange(10) >= 4          # standing for the first 4 frames
     tracks = frames_of([(f, 7, 1.1, 0.0) for f in range(2, 10)])
-    mot, err_all, err_walk = score_clear_mot(10, people, care, tracks)
+    mot, err_all, err_walk, verdicts = score_clear_mot(10, people, care, tracks)
     assert mot['all']['num_misses'] == 2 and mot['all']['num_matches'] == 8
     assert mot['walking']['num_misses'] == 0 and mot['walking']['num_matches'] == 6
     assert mot['walking']['num_false_positives'] == 0   # tracks on the standing person
     assert mot['walking']['num_objects'] == 6 and err_walk.size == 6
     assert np.allclose(err_all, 0.1)
+    # the per-frame verdicts (over all people) say which frame missed and which matched
+    miss = verdicts.kind == 'MISS'
+    assert verdicts.frame[miss].tolist() == [0, 1] and set(verdicts.obj_id[miss]) == {2}
+    assert np.isnan(verdicts.track_xy[miss]).all() and np.allclose(verdicts.obj_xy[miss], (1, 0))
+    match = verdicts.kind == 'MATCH'
+    assert verdicts.frame[match].tolist() == list(range(2, 10))
+    assert set(verdicts.track_id[match]) == {7} and np.allclose(verdicts.track_xy[match], (1.1, 0))
 
 
 def test_speed_is_judged_in_the_odometry_frame():

@@ -51,8 +51,11 @@ class Graph:
                     'blobs': io.create_publisher(MarkerArray, 'blobs', 10),
                     'tracks': io.create_publisher(MarkerArray, 'tracks', 10),
                     'ego_motion': io.create_publisher(Odometry, 'ego_motion', 10)}
-        self.got = {'ego_motion': [], 'blobs': [], 'tracks': [], 'head': [], 'target': []}
+        self.got = {'ego_motion': [], 'blobs': [], 'tracks': [], 'head': [], 'target': [],
+                    'hypotheses': [], 'markers': []}
         io.create_subscription(Odometry, 'ego_motion', self.got['ego_motion'].append, 10)
+        io.create_subscription(MarkerArray, 'hypotheses', self.got['hypotheses'].append, 10)
+        io.create_subscription(MarkerArray, 'tracks/markers', self.got['markers'].append, 10)
         io.create_subscription(MarkerArray, 'blobs', self.got['blobs'].append, 10)
         io.create_subscription(MarkerArray, 'tracks', self.got['tracks'].append, 10)
         io.create_subscription(JointState, 'head/command', self.got['head'].append, 10)
@@ -106,6 +109,33 @@ def walk(graph, start, n, dt=0.2):
     for k in range(n):
         t = start + k * dt
         graph.scan(t, -2.0 + 1.0 * (t - start))
+
+
+def test_tracking_publishes_what_rviz_draws_of_every_hypothesis(graph):
+    """tracks/markers: a label (id, kind, speed) and a velocity arrow per hypothesis, opaque
+    once confirmed, stamped as its tracks."""
+    from laser_tracker.conversions import (MARKER_ARROW, MARKER_TEXT, TENTATIVE_ALPHA,
+                                           objects_from_marker_array, stamp_to_ns)
+    walk(graph, 1.0, 10)
+    graph.spin_until(lambda: len(graph.got['markers']) >= len(graph.got['tracks']))
+    by_stamp = {stamp_to_ns(m.markers[0].header.stamp): m for m in graph.got['markers']}
+    seen_confirmed = False
+    for hyp in graph.got['hypotheses']:
+        stamp = stamp_to_ns(hyp.markers[0].header.stamp)
+        markers = by_stamp[stamp].markers
+        labels = {m.id: m for m in markers if m.type == MARKER_TEXT}
+        arrows = {m.id: m for m in markers if m.type == MARKER_ARROW}
+        for o in objects_from_marker_array(hyp)[2]:
+            label, arrow = labels[o.id], arrows[o.id]
+            speed = math.hypot(o.vx, o.vy)
+            assert label.text.split() == [f'{o.id}' + ('' if o.extra['confirmed'] else '?'),
+                                          o.extra['kind'], f'{speed:.1f}', 'm/s']
+            assert label.color.a == pytest.approx(1.0 if o.extra['confirmed']
+                                                  else TENTATIVE_ALPHA)
+            tip = arrow.points[1]
+            assert (tip.x, tip.y) == pytest.approx((o.x + o.vx, o.y + o.vy), abs=1e-6)
+            seen_confirmed |= o.extra['confirmed']
+    assert seen_confirmed
 
 
 def test_live_parameters_take_effect_from_the_next_message(graph):

@@ -77,7 +77,8 @@ class _Graph:
             self.executor.add_node(node)
         self.publishers = [self.scan_pub, self.odom_pub] + [
             p for n in self.nodes for p in n.publishers if p.topic_name not in
-            ('/rosout', '/parameter_events', '/head/target', '/hypotheses')]
+            ('/rosout', '/parameter_events', '/head/target', '/hypotheses',
+             '/tracks/markers')]
 
     def wait_connected(self, timeout=10.0):
         deadline = time.monotonic() + timeout

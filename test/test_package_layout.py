@@ -63,6 +63,8 @@ def test_colcon_build_installs_nodes_config_and_ament_index(tmp_path):
     share = prefix / 'share' / 'laser_tracker'
     assert (share / 'package.xml').is_file()
     assert (share / 'config' / 'laser_tracker.yaml').is_file()
+    for layout in ('laser_tracker.rviz', 'laser_tracker_foxglove.json'):   # RViz, Foxglove
+        assert (share / 'config' / layout).is_file(), layout
     assert (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' /
             'laser_tracker').is_file()
     for bag in (ROOT / 'bags').iterdir():

@@ -4,7 +4,9 @@ Subscribes ``blobs`` (from the ``detection`` node). Publishes ``tracks``: the co
 moving objects, and ``hypotheses``: every live hypothesis, both as
 visualization_msgs/MarkerArray in the moving-object schema (README.md, "Topics and schemas";
 ``text`` carries ``weight``, ``confirmed``, ``samples``, ``kind``, ``moving`` and the position
-``covariance``), in the odometry frame, stamped exactly as the scan.
+``covariance``), in the odometry frame, stamped exactly as the scan; and ``tracks/markers``,
+what RViz draws of them: a label (id, kind, speed) and a velocity arrow per hypothesis
+(``conversions.track_markers``; ``laser-tracker replay --record`` writes the same).
 
 The node is convert -> ``core.stages.Tracker`` -> convert; the stage owns the stream rules (a
 duplicate blobs message, e.g. from a second publisher, is skipped; time going backwards or a
@@ -16,8 +18,7 @@ from __future__ import annotations
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
-from laser_tracker.conversions import (blobs_from_marker_array, objects_to_marker_array,
-                                       restamp_ns, ros_factory, tracks_to_objects)
+from laser_tracker.conversions import blobs_from_marker_array, ros_factory, tracker_msgs
 from laser_tracker.core.stages import Tracker
 from laser_tracker.nodes import common
 from laser_tracker.nodes.params import LiveParameters
@@ -33,6 +34,8 @@ class TrackingNode(Node):
         self.tracks_pub = self.create_publisher(MarkerArray, 'tracks', common.RELIABLE_OUT)
         self.hypotheses_pub = self.create_publisher(MarkerArray, 'hypotheses',
                                                     common.RELIABLE_OUT)
+        self.markers_pub = self.create_publisher(MarkerArray, 'tracks/markers',
+                                                 common.RELIABLE_OUT)
         self.create_subscription(MarkerArray, 'blobs',
                                  common.guarded(self, 'blobs')(self.on_blobs), 10)
 
@@ -43,13 +46,11 @@ class TrackingNode(Node):
         blobs = blobs_from_marker_array(msg)
         if self.stage.update(blobs) is None:
             return
-        tracks = self.stage.tracks()
-        f, ns = self.factory, blobs.stamp_ns
-        self.tracks_pub.publish(restamp_ns(f, objects_to_marker_array(
-            f, tracks_to_objects(tracks, True), blobs.stamp, blobs.frame_id, 'tracks'), ns))
-        self.hypotheses_pub.publish(restamp_ns(f, objects_to_marker_array(
-            f, tracks_to_objects(tracks, False), blobs.stamp, blobs.frame_id, 'hypotheses',
-            color=(0.6, 0.6, 0.6, 0.5)), ns))
+        tracks, hypotheses, markers = tracker_msgs(self.factory, self.stage.tracks(),
+                                                   blobs.stamp, blobs.frame_id, blobs.stamp_ns)
+        self.tracks_pub.publish(tracks)
+        self.hypotheses_pub.publish(hypotheses)
+        self.markers_pub.publish(markers)
 
 
 def main(args=None) -> None:

@@ -389,15 +389,16 @@ def score_following(n_frames: int, people: Frames, tracks: Frames,
 
 
 def score_clear_mot(n_frames: int, people: Frames, care: np.ndarray, tracks: Frames,
-                    threshold: float = 0.75) -> tuple[dict, np.ndarray, np.ndarray]:
+                    threshold: float = 0.75):
     """CLEAR MOT (motmetrics) over every person (``all``) and over the ``care`` ones
     (``walking``; a track assigned to a don't-care person is dropped from that frame).
 
-    Returns ``({'all': ..., 'walking': ...}, match distances all, match distances walking)``.
+    Returns ``({'all': ..., 'walking': ...}, match distances all, match distances walking,
+    the per-frame verdicts over all (``scoring.FrameVerdicts``))``.
     """
     import motmetrics as mm
 
-    from laser_tracker.tools.scoring import _assign, _mot_summary
+    from laser_tracker.tools.scoring import _assign, _mot_summary, frame_verdicts
 
     acc_all = mm.MOTAccumulator(auto_id=False)
     acc_walk = mm.MOTAccumulator(auto_id=False)
@@ -422,8 +423,11 @@ def score_clear_mot(n_frames: int, people: Frames, care: np.ndarray, tracks: Fra
         ev = acc.mot_events
         return ev.loc[ev['Type'].isin(['MATCH', 'SWITCH']), 'D'].to_numpy(float)
 
+    def rows(frames: Frames):
+        return frames.frame, frames.obj_id, np.column_stack((frames.x, frames.y))
+
     return ({'all': _mot_summary(acc_all, 'all'), 'walking': _mot_summary(acc_walk, 'walking')},
-            errors(acc_all), errors(acc_walk))
+            errors(acc_all), errors(acc_walk), frame_verdicts(acc_all, rows(people), rows(tracks)))
 
 
 def error_stats(errors: np.ndarray) -> dict:
@@ -448,6 +452,8 @@ class AnnotatedEvaluation:
     people_walking: np.ndarray    # (A,) bool
     scan_poses: np.ndarray        # (S', 3) ego poses of the scored scans
     scan_segments: np.ndarray     # (S',) their ego-motion run numbers
+    frame_stamps: np.ndarray | None = None   # (S',) header stamps of the scored scans
+    verdicts: object | None = None           # scoring.FrameVerdicts (all), scan frame
 
 
 def _scan_frames(replay, scans: ScanTimes, tolerance: float, bag, folder, config):
@@ -536,7 +542,8 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
     tracks = Frames.of(frame[scan_of], t.track_id, tx, ty)
 
     follow = score_following(n_frames, people, tracks, config.threshold)
-    mot, err_all, err_walk = score_clear_mot(n_frames, people, walking, tracks, config.threshold)
+    mot, err_all, err_walk, verdicts = score_clear_mot(n_frames, people, walking, tracks,
+                                                       config.threshold)
     fd = follow.as_dict()
     comparable = {'objects': len(ann),
                   'tracked': fd['tracked'], 'id_switches': fd['id_switches'],
@@ -563,4 +570,5 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
         'position_error': {'all': error_stats(err_all), 'walking': error_stats(err_walk)},
     }
     return AnnotatedEvaluation(result, np.column_stack((ox, oy)), a.obj_id, walking,
-                               poses[frame >= 0], segment[frame >= 0])
+                               poses[frame >= 0], segment[frame >= 0],
+                               scans.stamps[frame >= 0], verdicts)

@@ -40,29 +40,55 @@ LATCHED_QOS = (Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
                    QosLiveliness.AUTOMATIC, QosTime(0, 0), False),)
 
 
+#: zstd level of compressed recordings: on a recording of the whole pipeline, 14 % smaller
+#: than rosbags' default (3) for 0.6 s more per 80 MB; 19 saves 10 % more for 25 s more.
+ZSTD_LEVEL = 9
+
+
+def _zstd_compressor(level: int):
+    import functools
+    try:
+        from compression import zstd          # Python 3.14
+    except ImportError:
+        from backports import zstd            # what rosbags uses before 3.14
+    return functools.partial(zstd.compress, level=level)
+
+
 class BagWriter:
     """Write a rosbag2 recording that appears only when complete.
 
     ``with BagWriter(path) as bag: bag.write('/scan', msg, stamp)``: the recording is written in
-    a temporary sibling folder and moved to ``path`` on success; after an error nothing is left.
+    a temporary sibling folder and moved to ``path`` on success; after an error (in the block,
+    or while closing: a full disk) nothing is left. ``compress``: zstd-compressed chunks (mcap
+    storage only; Foxglove and ``ros2 bag`` read them).
     """
 
-    def __init__(self, path: str | Path, storage: str = 'sqlite3', overwrite: bool = False):
+    def __init__(self, path: str | Path, storage: str = 'sqlite3', overwrite: bool = False,
+                 compress: bool = False):
         if storage not in ('sqlite3', 'mcap'):
             raise ValueError(f'storage must be sqlite3 or mcap, got {storage!r}')
         self.path, self.storage, self.overwrite = Path(path), storage, overwrite
+        self.compress = compress and storage == 'mcap'
         self._connections = {}
         self._atomic = None
         self._writer = None
 
     def __enter__(self) -> BagWriter:
-        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
         self._atomic = atomic_path(self.path, overwrite=self.overwrite)
         tmp = self._atomic.__enter__()
-        plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
-        self._writer = Writer(tmp, version=8, storage_plugin=plugin)
-        self._writer.open()
+        try:
+            plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
+            self._writer = Writer(tmp, version=8, storage_plugin=plugin)
+            if self.compress:
+                self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            self._writer.open()
+            if self.compress and hasattr(self._writer.storage, 'compressor'):
+                self._writer.storage.compressor = _zstd_compressor(ZSTD_LEVEL)
+        except BaseException as exc:
+            self._atomic.__exit__(type(exc), exc, exc.__traceback__)
+            raise
         return self
 
     def write(self, topic: str, msg, stamp: float | int, qos=()) -> None:
@@ -82,11 +108,24 @@ class BagWriter:
         self._writer.write(conn, ns, TYPESTORE.serialize_cdr(msg, msgtype))
 
     def __exit__(self, exc_type, exc, tb):
-        try:
-            self._writer.close()
-        finally:
+        if exc_type is None:
+            try:
+                self._writer.close()
+            except BaseException as err:       # e.g. the disk filled while closing
+                self._abort()
+                self._atomic.__exit__(type(err), err, err.__traceback__)
+                raise
+            self._atomic.__exit__(None, None, None)
+        else:
+            self._abort()
             self._atomic.__exit__(exc_type, exc, tb)
         return False
+
+    def _abort(self) -> None:
+        try:
+            self._writer.abort()
+        except Exception:  # noqa: BLE001 - the folder is removed regardless
+            pass
 
 
 def _open(path: Path) -> AnyReader:

@@ -23,6 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'replay': ('laser_tracker.tools.replay', 'run ego-motion, detection and tracking on a bag'),
     'evaluate': ('laser_tracker.tools.evaluate', 'score a replay against ground truth'),
     'demo': ('laser_tracker.tools.demo', 'replay and evaluate a bundled recording'),
+    'animate': ('laser_tracker.tools.animate',
+                'a GIF or MP4 of the scans with the tracks of a replay'),
     'bench': ('laser_tracker.tools.bench', 'benchmarks that print figures'),
     'train-detector': ('laser_tracker.tools.train_detector', 'train the person detector'),
     'sick-sim': ('laser_tracker.tools.sick_sim', 'a SICK LMS2xx device on a pseudo-terminal'),

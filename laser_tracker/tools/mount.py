@@ -32,6 +32,8 @@ class Mount:
     from_recording: bool = False
     source: str = 'parameters'      # '/tf_static', '/tf', 'parameters', 'same frame', ...
     message: str = ''               # what to tell the user ('' = nothing worth saying)
+    base_frame: str | None = None   # the odometry's child frame, when the recording has one
+    scan_frame: str | None = None   # the scans' frame, when read
 
 
 def _first_frames(path: Path, scan_topic: str, odom_topic: str | None):
@@ -81,8 +83,10 @@ def recording_mount(path: str | Path, scan_topic: str, odom_topic: str | None,
     if not odom_topic:
         return Mount(*configured, source='parameters (no odometry: the mount is not used)')
     scan_frame, base_frame = _first_frames(path, scan_topic, odom_topic)
+    frames = {'base_frame': base_frame, 'scan_frame': scan_frame}
     if not scan_frame or not base_frame or scan_frame == base_frame:
-        return Mount(*configured, source='parameters' if has_config else 'same frame')
+        return Mount(*configured, source='parameters' if has_config else 'same frame',
+                     **frames)
     info = topics(path)
     tf_topics = sorted((t for t, (typ, _) in info.items() if typ in TF_TYPES),
                        key=lambda t: (t != '/tf_static', t))
@@ -99,12 +103,12 @@ def recording_mount(path: str | Path, scan_topic: str, odom_topic: str | None,
                         f'yaw={math.degrees(yaw):.1f} deg')
                 if has_config and not np.allclose(configured, (x, y, yaw), atol=1e-6):
                     text += ' (used instead of the configured ego_motion.mount_*)'
-                return Mount(x, y, yaw, True, topic, text)
+                return Mount(x, y, yaw, True, topic, text, **frames)
             if k >= MAX_TF_MESSAGES:
                 break
     if has_config:
-        return Mount(*configured, source='parameters')
-    return Mount(source='unknown', message=(
+        return Mount(*configured, source='parameters', **frames)
+    return Mount(source='unknown', **frames, message=(
         f'warning: the scans are in frame {scan_frame!r} but the odometry is of '
         f'{base_frame!r}, and the recording has no transform between them: the scanner is '
         f'taken to sit at {base_frame!r} (set ego_motion.mount_x, mount_y, mount_yaw)'))

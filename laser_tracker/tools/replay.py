@@ -76,6 +76,43 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='also draw grid / previous grid / difference / velocities for '
                         'scan K (0-based)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    rec = parser.add_argument_group('recording of the run (for Foxglove, RViz, animate)')
+    rec.add_argument('--record', metavar='OUT',
+                     help='also write a rosbag2 recording of the run: the scans, /tf, '
+                          'ego-motion, grids, blobs, hypotheses, tracks and their markers, '
+                          'ground truth')
+    rec.add_argument('--record-storage', choices=('mcap', 'sqlite3'), default='mcap',
+                     help='storage of the recording (default mcap, zstd-compressed)')
+    rec.add_argument('--record-grids', default=None, metavar='every|none|N',
+                     help='occupancy grid and difference map on every N-th scan (default '
+                          f'{_default_grids()}), on every scan, or none')
+    rec.add_argument('--evaluate', action='store_true',
+                     help='add the evaluation per frame (/evaluation: matches, misses, false '
+                          'positives) for a recording with ground truth or annotated people')
+    rec.add_argument('--overwrite', action='store_true',
+                     help='replace an existing recording at OUT')
+
+
+def _default_grids() -> int:
+    from laser_tracker.tools.record import DEFAULT_GRID_EVERY
+    return DEFAULT_GRID_EVERY
+
+
+def _record_options(args: argparse.Namespace):
+    """The ``--record`` options (None without ``--record``); misuse is a one-line error."""
+    from laser_tracker.errors import LaserTrackerError
+    from laser_tracker.tools.record import RecordOptions, grid_every
+
+    given = [name for name, value in (('--record-grids', args.record_grids),
+                                      ('--evaluate', args.evaluate),
+                                      ('--overwrite', args.overwrite)) if value]
+    if not args.record:
+        if given:
+            raise LaserTrackerError(f'{", ".join(given)} only with --record OUT')
+        return None
+    grids = _default_grids() if args.record_grids is None else grid_every(args.record_grids)
+    return RecordOptions(Path(args.record), args.record_storage, args.overwrite, grids,
+                         args.evaluate)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,9 +120,12 @@ def run(args: argparse.Namespace) -> int:
     bag = resolve_bag(args.bag)
     out = Path(args.out) if args.out else Path('out') / bag.name.removesuffix('.bag')
     node_params = parameters.load_files(args.config, namespace=args.namespace)
+    record = _record_options(args)
+    if record is not None and record.evaluate:
+        _check_evaluable(bag)
     summary = replay_bag(bag, config=node_params, out_dir=out, scan_topic=args.scan_topic,
                          odom_topic=args.odom_topic, progress=not args.no_progress,
-                         figure_scan=args.figure_scan)
+                         figure_scan=args.figure_scan, record=record)
     skipped = sum(summary['scans_skipped'].values())
     print(f'{summary["scans"]} scans replayed ({skipped} skipped) in '
           f'{summary["timing"]["wall_s"]:.2f} s = {summary["timing"]["scans_per_s"] or 0:.0f} '
@@ -97,7 +137,23 @@ def run(args: argparse.Namespace) -> int:
         for reason, count in sorted(events.items()):
             print(f'  {stage}: {reason}: {count}')
     print(f'outputs in {out}: ' + ', '.join(summary['files']))
+    if record is not None:
+        r = summary['recording']
+        print(f'recording in {r["path"]}: {sum(r["messages"].values())} messages, '
+              f'{r["bytes"] / 1e6:.2f} MB ({r["storage"]})')
     return 0
+
+
+def _check_evaluable(bag: Path) -> None:
+    """``--evaluate`` needs per-frame labels: refuse, before the replay, a recording that
+    has none."""
+    from laser_tracker.errors import InputFileError
+    from laser_tracker.tools.evaluate import recording_kind
+
+    if recording_kind(bag) not in ('simulated', 'annotated'):
+        raise InputFileError(bag, '--evaluate needs a recording with ground truth '
+                             '(/ground_truth) or annotated people (/ground_truth_people_tracks)'
+                             '; record without --evaluate')
 
 
 def _fmt(v: float) -> str:
@@ -121,14 +177,39 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
                scan_topic: str = '/scan', odom_topic: str = '/odom', progress: bool = True,
                figure_scan: int | None = None,
                on_confirmed: Callable[[float, int, float, float, float, float], None] | None
-               = None) -> dict:
+               = None, record=None) -> dict:
     """Replay a recording; return the summary dict (also written as ``summary.json``).
 
     ``config``: None (the defaults), a parameter file path, a PipelineConfig, or the result
     of ``parameters.load``. Without ``out_dir`` nothing is written (the summary is still
     returned). ``on_confirmed(stamp, track_id, x, y, vx, vy)`` is called once per track, when
-    it is first confirmed (odometry frame).
+    it is first confirmed (odometry frame). ``record`` (``tools.record.RecordOptions``): also
+    write a recording of the run; its output is checked before the replay starts.
     """
+    if record is None:
+        return _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress,
+                       figure_scan, on_confirmed)
+    from laser_tracker.tools.record import RunRecorder
+
+    if record.evaluate and out_dir is None:
+        raise ValueError('record.evaluate needs out_dir (the evaluation reads the outputs)')
+    with RunRecorder(record) as recorder:
+        summary = _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress,
+                          figure_scan, on_confirmed, recorder)
+        if record.evaluate:
+            from laser_tracker.tools.evaluate import evaluate_recording
+
+            ev = evaluate_recording(out_dir, summary['bag'], scan_topic=scan_topic)
+            summary['recording_evaluation_frames'] = recorder.evaluation(ev)
+    summary['recording'] = recorder.summary()
+    if out_dir is not None:
+        write_json(Path(out_dir) / 'summary.json', summary)
+    return summary
+
+
+def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_scan,
+            on_confirmed, recorder=None) -> dict:
+    """:func:`replay_bag`, feeding ``recorder`` (``tools.record.RunRecorder``) when given."""
     from laser_tracker.tools.bag import iter_messages, topics
     from laser_tracker.tools.mount import recording_mount
 
@@ -155,6 +236,11 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
     if mount.message:
         print(f'{bag_path.name}: {mount.message}', file=sys.stderr)
     n_scans = int(info[scan_topic][1])
+    passthrough: set[str] = set()
+    if recorder is not None:
+        recorder.start(bag_path, info, scan_topic, mount, config.grid.resolution)
+        passthrough = set(recorder.passthrough_topics) - set(wanted)
+        wanted += sorted(passthrough)
 
     pipeline = Pipeline(config, odom_wait=odom_wait, profile=True)
     skipped: Counter = Counter()
@@ -166,7 +252,7 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
     skipped_odometry: Counter = Counter()
     damage = None
     scan_index = -1
-    state = {'scans_done': 0, 'background': None}
+    state = {'scans_done': 0, 'background': None, 'figure': None}
     wall0 = time.perf_counter()
 
     with contextlib.ExitStack() as stack:
@@ -193,6 +279,8 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
                     state['background'] = transform_points(result.pose, result.scan.points())
                 tracks = pipeline.tracker.tracks()
                 _write_scan(result, tracks, ego_f, trk_f)
+                if recorder is not None:
+                    recorder.step(result, tracks)
                 scanner.append(tuple(result.pose))
                 h = result.hypotheses
                 for j in np.flatnonzero(h.confirmed):
@@ -207,7 +295,7 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
                         on_confirmed(float(result.stamp), tid, float(h.position[j, 0]),
                                      float(h.position[j, 1]), float(h.velocity[j, 0]),
                                      float(h.velocity[j, 1]))
-                if result.detection.grid is not None and out_dir is not None:
+                if result.scan is state['figure'] and out_dir is not None:
                     from laser_tracker.tools.figures import scan_figure
                     name = f'scan_{figure_scan}.png'
                     scan_figure(result, config.grid.resolution, out_dir / name,
@@ -218,6 +306,9 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
         try:
             for topic, t_ns, msg in iter_messages(bag_path, wanted):
                 arrival = t_ns * 1e-9
+                if topic in passthrough:
+                    recorder.passthrough(topic, t_ns, msg)
+                    continue
                 if topic != scan_topic:
                     try:
                         odo = odometry_from_msg(msg)
@@ -239,6 +330,11 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
                     skipped[reason] += 1
                     continue
                 want = figure_scan is not None and scan_index == figure_scan
+                if want:
+                    state['figure'] = scan
+                if recorder is not None:
+                    recorder.scan_message(scan_index, msg, scan)
+                    want = want or recorder.wants_grids(scan_index)
                 process(pipeline.add_scan(scan, arrival, want))
             process(pipeline.flush())
         except InputFileError as exc:

@@ -310,6 +310,7 @@ class Scores:
     tracks_scored: int
     errors: np.ndarray
     unlabelled: dict = field(default_factory=dict)
+    verdicts: FrameVerdicts | None = None    # CLEAR MOT over the detectable objects, per frame
 
     def is_taken(self, path: Path) -> bool:
         return path.visible and path.duration >= self.config.min_path_duration - 1e-9
@@ -388,6 +389,50 @@ def _mot_summary(acc, name: str) -> dict:
         v = float(row[k])  # MOTA is -inf, precision/recall nan, with nothing to count
         out[k] = int(v) if k.startswith('num_') else (v if math.isfinite(v) else None)
     return out
+
+
+@dataclass
+class FrameVerdicts:
+    """CLEAR MOT's verdicts frame by frame, as motmetrics logged them: one row per ``kind``
+    ``MATCH``, ``SWITCH`` (a match whose track changed object), ``MISS`` or ``FP``, with its
+    ``frame``, ``obj_id`` and ``track_id`` (-1 where none) and the positions ``obj_xy`` and
+    ``track_xy`` (K, 2; NaN where none) in the frame the matching was done in."""
+
+    frame: np.ndarray
+    kind: np.ndarray
+    obj_id: np.ndarray
+    track_id: np.ndarray
+    obj_xy: np.ndarray
+    track_xy: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.frame.size)
+
+
+VERDICT_KINDS = ('MATCH', 'SWITCH', 'MISS', 'FP')
+
+
+def frame_verdicts(acc, objects, tracks) -> FrameVerdicts:
+    """The verdicts of a motmetrics accumulator; ``objects`` and ``tracks`` are the rows it
+    was fed, ``(frame (N,), id (N,), xy (N, 2))``, to look the positions up."""
+    ev = acc.mot_events
+    ev = ev[ev['Type'].isin(VERDICT_KINDS)]
+    frame = ev.index.get_level_values(0).to_numpy(np.int64)
+    ids = [np.nan_to_num(ev[c].to_numpy(float), nan=-1).astype(np.int64)
+           for c in ('OId', 'HId')]
+
+    def positions(rows, wanted):
+        row_frame, row_id, xy = (np.asarray(v) for v in rows)
+        at = {(int(f), int(i)): k for k, (f, i) in enumerate(zip(row_frame, row_id))}
+        out = np.full((frame.size, 2), np.nan)
+        for k, (f, i) in enumerate(zip(frame, wanted)):
+            r = at.get((int(f), int(i)))
+            if r is not None:
+                out[k] = xy[r]
+        return out
+
+    return FrameVerdicts(frame, ev['Type'].to_numpy(str), ids[0], ids[1],
+                         positions(objects, ids[0]), positions(tracks, ids[1]))
 
 
 def _runs(frames: np.ndarray) -> list[tuple[int, int]]:
@@ -500,6 +545,9 @@ def score(truth: TruthTable, tracks: TrackTable,
 
     clear_mot = {'detectable': _mot_summary(acc_det, 'detectable'),
                  'present': _mot_summary(acc_all, 'present')}
+    verdicts = frame_verdicts(acc_det,
+                              (truth.frame, truth.obj_id, np.column_stack((truth.x, truth.y))),
+                              (tframe, scored.track_id, np.column_stack((scored.x, scored.y))))
     ev = acc_det.mot_events
     errors = ev.loc[ev['Type'].isin(['MATCH', 'SWITCH']), 'D'].to_numpy(float)
 
@@ -553,7 +601,8 @@ def score(truth: TruthTable, tracks: TrackTable,
                   incorrect_steady=incorrect_steady,
                   objects_passing=len(passing),
                   objects_detected=len(detected),
-                  tracks_scored=int(np.unique(scored.track_id).size), errors=errors)
+                  tracks_scored=int(np.unique(scored.track_id).size), errors=errors,
+                  verdicts=verdicts)
 
 
 # --------------------------------------------------------------------------- unlabelled

@@ -1,0 +1,344 @@
+"""``laser-tracker replay BAG --record OUT``: a rosbag2 recording of what the tracker saw.
+
+One set of messages per replayed scan, every one logged at the scan's header stamp and
+stamped with it exactly, as the nodes publish them (the same functions of
+``laser_tracker.conversions``), so that Foxglove, RViz (``ros2 bag play``) or a program steps
+through the run scan by scan:
+
+==========================  =====================================  ===========================
+topic                       type                                   content
+==========================  =====================================  ===========================
+``/scan``                   sensor_msgs/LaserScan                  the input scan, whatever its
+                                                                   topic in the input
+``/tf``                     tf2_msgs/TFMessage                     odom -> base (the odometry's
+                                                                   child frame; the scanner's
+                                                                   frame without odometry);
+                                                                   map -> odom with ground truth
+``/tf_static``              tf2_msgs/TFMessage (latched)           base -> scanner (the mount)
+``/ego_motion``,            nav_msgs/Odometry,                     as the ``ego_motion`` node
+``/ego_motion/status``      diagnostic_msgs/DiagnosticArray
+``/grid``,                  nav_msgs/OccupancyGrid                 the occupancy grid and the
+``/grid/difference``                                               difference map, scanner frame
+                                                                   (every ``grids``-th scan)
+``/blobs``                  visualization_msgs/MarkerArray         as the ``detection`` node
+``/hypotheses``,            visualization_msgs/MarkerArray         as the ``tracking`` node
+``/tracks``,
+``/tracks/markers``
+``/ground_truth``           visualization_msgs/MarkerArray         simulated truth (map frame)
+                                                                   or annotated people (scanner
+                                                                   frame), when the input has it
+``/ground_truth/platform``  nav_msgs/Odometry                      passed through
+``/evaluation``             visualization_msgs/MarkerArray         with ``--evaluate``: CLEAR MOT
+                                                                   per frame
+==========================  =====================================  ===========================
+
+Frames: ``odom`` (tracks, blobs, ego-motion), the scanner's (scans, grids), ``map`` (simulated
+ground truth: map -> odom is the correction ``laser-tracker evaluate`` applies, so the truth
+lies where the tracker is scored against it). Storage: mcap with zstd-compressed chunks by
+default, or sqlite3. The grids are the bulk of a recording (two 160 x 160 grids per scan);
+by default every :data:`DEFAULT_GRID_EVERY`-th scan has them, ``grids='every'`` gives all.
+
+The recording appears whole or not at all (``tools.bag.BagWriter``): an existing path is
+refused without ``overwrite``, an unwritable one fails before the replay starts, and a write
+that fails (a full disk) is one error line with nothing left behind.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from laser_tracker.conversions import (OCCUPANCY_OF_CELL, PlanarTransform, blobs_to_marker_array,
+                                       difference_occupancy, ego_motion_to_msgs,
+                                       evaluation_markers, objects_to_marker_array,
+                                       MovingObject, occupancy_grid_msg, restamp_ns,
+                                       scan_to_msg, time_msg, tracker_msgs, transforms_to_msg)
+from laser_tracker.core.geometry import compose, interpolate_poses, inverse
+from laser_tracker.errors import LaserTrackerError
+from laser_tracker.tools.bag import (FACTORY, GROUND_TRUTH_TOPIC, LATCHED_QOS,
+                                     PLATFORM_TRUTH_TOPIC, TF_STATIC_TOPIC, BagWriter)
+
+log = logging.getLogger(__name__)
+
+SCAN_TOPIC = '/scan'
+TF_TOPIC = '/tf'
+GRID_TOPIC = '/grid'
+DIFFERENCE_TOPIC = '/grid/difference'
+EGO_TOPIC = '/ego_motion'
+EGO_STATUS_TOPIC = '/ego_motion/status'
+BLOBS_TOPIC = '/blobs'
+HYPOTHESES_TOPIC = '/hypotheses'
+TRACKS_TOPIC = '/tracks'
+TRACK_MARKERS_TOPIC = '/tracks/markers'
+EVALUATION_TOPIC = '/evaluation'
+MAP_FRAME = 'map'
+
+#: Every topic a recording may hold, with its type (the layouts in config/ name these).
+TOPICS = {
+    SCAN_TOPIC: 'sensor_msgs/msg/LaserScan',
+    TF_TOPIC: 'tf2_msgs/msg/TFMessage',
+    TF_STATIC_TOPIC: 'tf2_msgs/msg/TFMessage',
+    EGO_TOPIC: 'nav_msgs/msg/Odometry',
+    EGO_STATUS_TOPIC: 'diagnostic_msgs/msg/DiagnosticArray',
+    GRID_TOPIC: 'nav_msgs/msg/OccupancyGrid',
+    DIFFERENCE_TOPIC: 'nav_msgs/msg/OccupancyGrid',
+    BLOBS_TOPIC: 'visualization_msgs/msg/MarkerArray',
+    HYPOTHESES_TOPIC: 'visualization_msgs/msg/MarkerArray',
+    TRACKS_TOPIC: 'visualization_msgs/msg/MarkerArray',
+    TRACK_MARKERS_TOPIC: 'visualization_msgs/msg/MarkerArray',
+    GROUND_TRUTH_TOPIC: 'visualization_msgs/msg/MarkerArray',
+    PLATFORM_TRUTH_TOPIC: 'nav_msgs/msg/Odometry',
+    EVALUATION_TOPIC: 'visualization_msgs/msg/MarkerArray',
+}
+
+#: Grids on every N-th scan by default: on every scan they would be more than half of a
+#: recording (on leg_tracker's person_following: 15 MB with all, 6.9 MB with every 10th).
+DEFAULT_GRID_EVERY = 10
+GRID_CHOICES = 'every, none or N (every N-th scan)'
+
+
+def grid_every(text: str | int) -> int:
+    """``--record-grids`` -> every how many scans the grids are written (0: never)."""
+    word = str(text).strip().lower()
+    if word in ('every', 'all'):
+        return 1
+    if word in ('none', 'off', '0'):
+        return 0
+    try:
+        every = int(word)
+    except ValueError:
+        every = -1
+    if every < 1:
+        raise LaserTrackerError(f'--record-grids {text!r}: expected {GRID_CHOICES}')
+    return every
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """What ``replay --record`` writes: where, in which storage, grids every ``grids`` scans
+    (1: all, 0: none), and whether the evaluation's verdicts are added."""
+
+    path: Path
+    storage: str = 'mcap'
+    overwrite: bool = False
+    grids: int = DEFAULT_GRID_EVERY
+    evaluate: bool = False
+
+
+class RunRecorder:
+    """Writes the recording of one replay (the module doc says what).
+
+    ``with RunRecorder(options) as rec:`` opens the output (an existing or unwritable path
+    fails here, before any work); then ``start(...)`` once the recording's frames are known,
+    ``scan_message`` for every input scan, ``passthrough`` for the ground-truth topics,
+    ``step`` for every replayed scan and, last, ``evaluation``.
+    """
+
+    def __init__(self, options: RecordOptions):
+        self.options = options
+        self.path = Path(options.path)
+        self.counts: dict[str, int] = {}
+        self._bag: BagWriter | None = None
+        self._static_done = False
+        self._stamps: list[tuple[float, int]] = []      # (stamp s, stamp ns) of each step
+        self.base_frame: str | None = None
+        self.scan_frame = ''
+        self.mount = np.zeros(3)
+        self.resolution = 0.1
+        self._truth: tuple[np.ndarray, np.ndarray] | None = None   # platform truth, scanner
+        self._annotations = None     # (annotations.Annotations, {scan index: its rows})
+        self._passthrough: set[str] = set()
+
+    # ---------------------------------------------------------------- output
+    def __enter__(self) -> RunRecorder:
+        if self.path.exists() and not self.options.overwrite:
+            raise LaserTrackerError(f'{self.path}: already exists (use --overwrite to replace '
+                                    'it, or choose another name)')
+        try:
+            self._bag = BagWriter(self.path, storage=self.options.storage,
+                                  overwrite=self.options.overwrite, compress=True).__enter__()
+        except OSError as exc:
+            raise LaserTrackerError(f'{self.path}: cannot write the recording here: '
+                                    f'{exc.strerror or exc}') from None
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            self._bag.__exit__(exc_type, exc, tb)
+        except OSError as err:          # closing failed: a full disk; nothing is left
+            raise LaserTrackerError(f'{self.path}: recording not written: '
+                                    f'{err.strerror or err}') from None
+        return False
+
+    def _write(self, topic: str, msg, ns: int, qos=()) -> None:
+        try:
+            self._bag.write(topic, msg, int(ns), qos)
+        except OSError as err:
+            raise LaserTrackerError(f'{self.path}: recording not written: '
+                                    f'{err.strerror or err}') from None
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    # ---------------------------------------------------------------- inputs
+    def start(self, bag: Path, info: dict, scan_topic: str, mount, resolution: float) -> None:
+        """What the input holds: its topics (``tools.bag.topics``), the replayed scan topic,
+        the mount used (``tools.mount.Mount``) and the grid's cell size."""
+        from laser_tracker.tools.annotations import ANNOTATION_TOPIC
+        from laser_tracker.tools.bag import read_platform_truth
+
+        self.resolution = float(resolution)
+        self.mount = np.array([mount.x, mount.y, mount.yaw], float)
+        self.base_frame = (mount.base_frame or '').strip('/') or None
+        if PLATFORM_TRUTH_TOPIC in info and info[PLATFORM_TRUTH_TOPIC][1]:
+            truth = read_platform_truth(bag)
+            order = np.argsort(truth.stamps, kind='stable')
+            scanner = np.array([compose(p, self.mount) for p in truth.poses[order]])
+            self._truth = (truth.stamps[order], scanner.reshape(-1, 3))
+            self._passthrough.add(PLATFORM_TRUTH_TOPIC)
+            if GROUND_TRUTH_TOPIC in info:
+                self._passthrough.add(GROUND_TRUTH_TOPIC)
+        elif GROUND_TRUTH_TOPIC in info:
+            log.warning('%s: %s is not recorded: without %s its frame %r is not connected to '
+                        'the odometry frame', bag, GROUND_TRUTH_TOPIC, PLATFORM_TRUTH_TOPIC,
+                        MAP_FRAME)
+        if ANNOTATION_TOPIC in info and info[ANNOTATION_TOPIC][1]:
+            from laser_tracker.tools.annotations import read_annotations
+            from laser_tracker.tools.bag import read_scan_times
+
+            ann = read_annotations(bag, ANNOTATION_TOPIC, read_scan_times(bag, scan_topic))
+            self._annotations = (ann, {int(k): np.flatnonzero(ann.scan == k)
+                                       for k in np.unique(ann.scan)})
+
+    @property
+    def passthrough_topics(self) -> list[str]:
+        """Input topics the replay hands to :meth:`passthrough`."""
+        return sorted(self._passthrough)
+
+    def wants_grids(self, scan_index: int) -> bool:
+        every = self.options.grids
+        return every > 0 and scan_index % every == 0
+
+    def scan_message(self, index: int, msg, scan) -> None:
+        """An input scan (``msg``; ``scan`` its ``core.scan.Scan``), the ``index``-th of its
+        topic: written as received (Jazzy definitions) with the annotations placed at it."""
+        frame = scan.frame_id.strip('/')
+        self.scan_frame = self.scan_frame or frame
+        intensities = np.asarray(getattr(msg, 'intensities', ()), dtype=np.float32)
+        out = scan_to_msg(FACTORY, scan, intensities
+                          if intensities.size == scan.n_beams else None)
+        out.header.frame_id = frame
+        self._write(SCAN_TOPIC, restamp_ns(FACTORY, out, scan.stamp_ns), scan.stamp_ns)
+        if self._annotations is not None:
+            a, at_scan = self._annotations
+            rows = at_scan.get(index, np.zeros(0, np.intp))
+            people = [MovingObject(int(a.obj_id[r]), float(a.x[r]), float(a.y[r]),
+                                   extra={'kind': 'person'}) for r in rows]
+            gt = objects_to_marker_array(FACTORY, people, scan.stamp, frame, 'ground_truth',
+                                         color=(0.1, 0.8, 0.1, 0.8))
+            self._write(GROUND_TRUTH_TOPIC, restamp_ns(FACTORY, gt, scan.stamp_ns),
+                        scan.stamp_ns)
+
+    def passthrough(self, topic: str, receive_ns: int, msg) -> None:
+        """A ground-truth message, logged at its header stamp."""
+        hdr = msg.markers[0].header if hasattr(msg, 'markers') and msg.markers else \
+            getattr(msg, 'header', None)
+        ns = receive_ns if hdr is None else \
+            int(hdr.stamp.sec) * 1_000_000_000 + int(hdr.stamp.nanosec)
+        self._write(topic, msg, ns)
+
+    # ---------------------------------------------------------------- outputs
+    def step(self, result, tracks) -> None:
+        """Everything one replayed scan produced (``core.pipeline.StepResult`` and the
+        tracker's ``Tracks`` after it)."""
+        f = FACTORY
+        scan, ego = result.scan, result.ego
+        ns, stamp = scan.stamp_ns, float(result.stamp)
+        self._stamps.append((stamp, ns))
+        self._transforms(ego, stamp, ns)
+        odometry, status = ego_motion_to_msgs(f, ego)
+        self._write(EGO_TOPIC, odometry, ns)
+        self._write(EGO_STATUS_TOPIC, status, ns)
+        det = result.detection
+        if det.grid is not None:
+            self._write(GRID_TOPIC, restamp_ns(f, occupancy_grid_msg(
+                f, OCCUPANCY_OF_CELL[det.grid], self.resolution, stamp, scan.frame_id), ns), ns)
+            self._write(DIFFERENCE_TOPIC, restamp_ns(f, occupancy_grid_msg(
+                f, difference_occupancy(det), self.resolution, stamp, scan.frame_id), ns), ns)
+        blobs = det.blobs
+        self._write(BLOBS_TOPIC, restamp_ns(f, blobs_to_marker_array(f, blobs), ns), ns)
+        confirmed, hypotheses, markers = tracker_msgs(f, tracks, blobs.stamp, blobs.frame_id,
+                                                      ns)
+        self._write(HYPOTHESES_TOPIC, hypotheses, ns)
+        self._write(TRACKS_TOPIC, confirmed, ns)
+        self._write(TRACK_MARKERS_TOPIC, markers, ns)
+
+    def _transforms(self, ego, stamp: float, ns: int) -> None:
+        """/tf at this scan (odom -> base or scanner; map -> odom with ground truth), and
+        /tf_static (base -> scanner) once."""
+        odom, scanner = ego.frame_id, self.scan_frame or ego.child_frame_id.strip('/')
+        base = self.base_frame if self.base_frame and self.base_frame != scanner else None
+        pose = np.asarray(ego.pose, float)
+        if not self._static_done and base is not None:
+            mount = PlanarTransform(stamp, base, scanner, *self.mount)
+            self._write(TF_STATIC_TOPIC, _stamped(transforms_to_msg(FACTORY, [mount]), ns), ns,
+                        LATCHED_QOS)
+        self._static_done = True
+        child = base or scanner
+        at = compose(pose, inverse(self.mount)) if base else pose
+        transforms = [PlanarTransform(stamp, odom, child, *at)]
+        if self._truth is not None:
+            true = interpolate_poses(*self._truth, np.array([stamp]))[0]
+            transforms.append(PlanarTransform(stamp, MAP_FRAME, odom,
+                                              *compose(true, inverse(pose))))
+        self._write(TF_TOPIC, _stamped(transforms_to_msg(FACTORY, transforms), ns), ns)
+
+    def evaluation(self, ev) -> int:
+        """``/evaluation``: per scored frame, CLEAR MOT's verdicts of ``ev``
+        (``evaluate.Evaluation``: simulated ground truth, map frame; or annotated people,
+        scanner frame). Returns how many frames were written."""
+        from laser_tracker.tools.scoring import match_stamps, median_period
+
+        if ev.scores is not None and ev.scores.verdicts is not None:
+            verdicts, stamps, frame_id = ev.scores.verdicts, ev.truth.stamps, MAP_FRAME
+        elif ev.annotated is not None and ev.annotated.verdicts is not None:
+            verdicts, stamps = ev.annotated.verdicts, ev.annotated.frame_stamps
+            frame_id = self.scan_frame
+        else:
+            raise LaserTrackerError('--evaluate: the recording has no ground truth or '
+                                    'annotated people to score per frame')
+        seconds = np.array([s for s, _ in self._stamps], float)
+        order = np.argsort(seconds, kind='stable')
+        scan_of_frame = match_stamps(np.asarray(stamps, float), seconds[order],
+                                     0.25 * median_period(seconds))
+        frames = 0
+        for f, k in enumerate(scan_of_frame):
+            if k < 0:
+                continue
+            stamp, ns = self._stamps[order[k]]
+            rows = np.flatnonzero(verdicts.frame == f)
+            kind = verdicts.kind[rows]
+            match = rows[np.isin(kind, ('MATCH', 'SWITCH'))]
+            msg = evaluation_markers(
+                FACTORY, stamp, frame_id,
+                np.hstack((verdicts.track_xy[match], verdicts.obj_xy[match])),
+                verdicts.obj_xy[rows[kind == 'MISS']], verdicts.track_xy[rows[kind == 'FP']])
+            self._write(EVALUATION_TOPIC, restamp_ns(FACTORY, msg, ns), ns)
+            frames += 1
+        return frames
+
+    def summary(self) -> dict:
+        """For summary.json: where, how, what (messages per topic)."""
+        size = sum(p.stat().st_size for p in self.path.rglob('*') if p.is_file()) \
+            if self.path.exists() else None
+        return {'path': str(self.path), 'storage': self.options.storage,
+                'grids_every': self.options.grids, 'bytes': size,
+                'messages': dict(sorted(self.counts.items()))}
+
+
+def _stamped(tf_message, ns: int):
+    """Every transform of a TFMessage stamped with ``ns`` exactly."""
+    stamp = time_msg(FACTORY, ns)
+    for t in tf_message.transforms:
+        t.header.stamp = stamp
+    return tf_message
