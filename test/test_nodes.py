@@ -41,9 +41,10 @@ def _offline_tracks(messages):
 
 
 class _Graph:
-    """The nodes plus a feeder and a listener in one executor."""
+    """The nodes plus a feeder and a listener in one executor; ``node_kwargs`` go to each
+    node (e.g. ``parameter_overrides``)."""
 
-    def __init__(self, context):
+    def __init__(self, context, **node_kwargs):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import qos_profile_sensor_data
@@ -63,9 +64,9 @@ class _Graph:
                 self.odom_received += 1
                 super().on_odom(msg)
 
-        self.ego = CountingEgoMotion(context=context)
-        self.nodes = [self.ego, DetectionNode(context=context), TrackingNode(context=context),
-                      ActiveHeadNode(context=context)]
+        self.ego = CountingEgoMotion(context=context, **node_kwargs)
+        self.nodes = [self.ego] + [cls(context=context, **node_kwargs) for cls in
+                                   (DetectionNode, TrackingNode, ActiveHeadNode)]
         self.io = rclpy.create_node('test_feeder', context=context)
         self.scan_pub = self.io.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
         self.odom_pub = self.io.create_publisher(Odometry, 'odom', qos_profile_sensor_data)

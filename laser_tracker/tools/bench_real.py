@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from laser_tracker import parameters
+from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.data import real_recording
 
 REPO = Path(__file__).resolve().parents[2]
@@ -123,6 +124,8 @@ def _kinds(path: Path) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.ERROR)
+    if args.json:
+        check_output(args.json, overwrite=True)
     configs = {m: CONFIGS[m] for m in args.modes}
     if args.config:
         configs['custom'] = Path(args.config)

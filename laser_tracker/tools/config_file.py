@@ -20,7 +20,7 @@ from pathlib import Path
 from laser_tracker import parameters
 from laser_tracker.config import ConfigError, render_ros_yaml
 from laser_tracker.core.pipeline import PipelineConfig
-from laser_tracker.tools.atomic import atomic_path
+from laser_tracker.tools.atomic import atomic_path, check_output
 
 HEADER = """\
 # laser_tracker parameters, every node (ROS 2 parameter file).
@@ -74,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         if args.write == '-':
             print(text, end='')
             return 0
+        check_output(args.write, overwrite=True)
         with atomic_path(Path(args.write), overwrite=True) as tmp:
             tmp.write_text(text)
         print(f'wrote {args.write}')
