@@ -192,7 +192,7 @@ def test_out_of_range_parameter_is_refused_with_its_name(ros_context):
                                           'is below the minimum'):
         TrackingNode(context=ros_context,
                      parameter_overrides=[Parameter('hypotheses.w_inc', value=-5.0)])
-    with pytest.raises(ConfigError, match="unknown parameter 'hypotheses.w_extra'"):
+    with pytest.raises(ConfigError, match="no node has a parameter 'hypotheses.w_extra'"):
         TrackingNode(context=ros_context,
                      parameter_overrides=[Parameter('hypotheses.w_extra', value=1.0)])
     node = TrackingNode(context=ros_context,          # an integer is a fine float
