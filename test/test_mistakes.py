@@ -150,30 +150,8 @@ def test_play_refuses_a_recording_without_scans_and_unknown_topics(tmp_path):
                     '--topics: no topic /wheel_odom; it has:')
 
 
-def test_ctrl_c_during_a_replay_to_a_new_folder_leaves_nothing(tmp_path):
-    out = tmp_path / 'new' / 'run'
-    isolate_ros_env()
-    proc = subprocess.Popen([installed_executable('laser-tracker'), 'replay',
-                             'hokuyo_corridor_lobby', '--out', str(out), '--no-progress'],
-                            env=dict(os.environ), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    try:
-        deadline = time.monotonic() + 60.0
-        while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert out.exists(), proc.communicate()
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=30.0)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 130, err
-    assert 'Traceback' not in err and not out.exists()
-    assert (tmp_path / 'new').exists()      # made for the output, empty: harmless
-
-
 class Process:
-    """A node executable whose output is collected by a thread."""
+    """An executable whose output (stdout and stderr) is collected by a thread."""
 
     def __init__(self, name: str, *args: str):
         isolate_ros_env()
@@ -203,6 +181,20 @@ class Process:
                 self.proc.kill()
         self.reader.join(5.0)
         return self.lines
+
+
+def test_ctrl_c_during_a_replay_to_a_new_folder_leaves_nothing(tmp_path):
+    out = tmp_path / 'new' / 'run'
+    replay = Process('laser-tracker', 'replay', 'hokuyo_corridor_lobby', '--out', str(out),
+                     '--no-progress')
+    deadline = time.monotonic() + 60.0
+    while not out.exists() and replay.proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert out.exists(), replay.stop()
+    text = ''.join(replay.stop())                # Ctrl-C while the replay runs
+    assert replay.proc.returncode == 130, text
+    assert 'Traceback' not in text and not out.exists()
+    assert (tmp_path / 'new').exists()      # made for the output, empty: harmless
 
 
 def test_nodes_say_their_topics_and_warn_when_no_scan_comes(tmp_path):

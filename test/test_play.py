@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ros_env import installed_executable, spin_until
-from test_nodes import _Graph
+from test_nodes import _Graph, assert_tracks_equal
 
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools.bag import (LATCHED_QOS, TYPESTORE, BagWriter, cdr_converter,
@@ -156,6 +156,30 @@ def test_latched_topics_reach_late_subscribers(tmp_path, ros_context):
         reader.close()
 
 
+def test_a_message_that_cannot_be_converted_is_skipped_and_said_once(tmp_path, ros_context,
+                                                                     capsys):
+    import rclpy
+
+    bag = _tiny_recording(tmp_path / 'tiny')
+    reader = open_reader(bag)
+    node = rclpy.create_node('player', context=ros_context)
+    try:
+        channels, _ = plan(reader, bag, ['/scan', '/chatter'])
+
+        def damaged(raw):
+            raise ValueError('truncated')
+        scans = next(c for c in channels if c.topic == '/scan')
+        scans.convert = damaged
+        player = Player(node, channels, rate=100.0)
+        assert player.play(iter_records(reader, bag, reader.connections)) == 1   # /chatter
+        assert player.unconverted == {'/scan': 2}
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and '/scan: a message that cannot be converted' in err
+    finally:
+        node.destroy_node()
+        reader.close()
+
+
 def test_no_laser_scan_or_unknown_topics_are_refused(tmp_path):
     bag = _tiny_recording(tmp_path / 'tiny')
     reader = open_reader(bag)
@@ -194,7 +218,6 @@ def test_play_into_the_node_graph_gives_the_offline_replays_tracks(ros_context, 
     clock follows the recording."""
     from rclpy.parameter import Parameter
 
-    from laser_tracker.conversions import objects_from_marker_array
     from laser_tracker.tools.bag import topics
 
     bag = ROOT / 'bags' / 'crossing_walkers'    # the platform drives; people cross
@@ -216,20 +239,11 @@ def test_play_into_the_node_graph_gives_the_offline_replays_tracks(ros_context, 
         assert proc.returncode == 0, err
         assert out.startswith('playing crossing_walkers: ') and 'played ' in out, out
         graph.spin_until(lambda: len(graph.tracks) >= len(expected), timeout=10.0)
-        published = {}
-        for array in graph.tracks:
-            stamp, _, objects = objects_from_marker_array(array)
-            published[round(stamp, 6)] = sorted((o.id, o.x, o.y) for o in objects)
-        assert published.keys() == expected.keys()
-        for stamp, tracks in expected.items():
-            got = published[stamp]
-            assert [t[0] for t in got] == [t[0] for t in tracks], stamp
-            np.testing.assert_allclose([t[1:] for t in got], [t[1:] for t in tracks],
-                                       atol=1e-4, err_msg=str(stamp))   # csv: 4 decimals
+        assert_tracks_equal(graph.tracks, expected, atol=1e-4)     # tracks.csv: 4 decimals
+        assert graph.ego.odom_received == topics(bag)['/odom'][1]   # none lost
         last_receive = max(int(t) for t in _receive_times(bag))
         clock_ns = graph.ego.get_clock().now().nanoseconds
         assert abs(clock_ns - last_receive) < 0.1e9, (clock_ns, last_receive)
-        assert graph.ego.odom_received == topics(bag)['/odom'][1]
     finally:
         graph.close()
 
@@ -272,4 +286,4 @@ def test_ctrl_c_stops_play_at_once_with_an_end_line(tmp_path):
     assert proc.returncode == 130, (lines, err)
     assert 'Traceback' not in err, err
     assert lines[0].startswith('playing exp1_stationary_single_walker:')
-    assert lines[-1].startswith('stopped (Ctrl-C) after '), lines
+    assert lines[-1].startswith('stopped (Ctrl-C) after '), (lines, err)

@@ -23,17 +23,19 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from laser_tracker.conversions import time_msg
 from laser_tracker.errors import InputFileError, LaserTrackerError
 
 CLOCK_HZ = 40.0          # /clock between messages (ros2 bag play's default)
 NODE_NAME = 'laser_tracker_play'
 LATCHED_DEPTH = 100      # a late subscriber gets up to this many messages of a latched topic
 DEPTH = 100
+SETTLE = 0.5             # s without a new subscription before the first message
 
 
 @dataclass
@@ -131,18 +133,27 @@ class Player:
         self.clock = None
         if clock:
             from rosgraph_msgs.msg import Clock
+
+            from laser_tracker.conversions import ros_factory
             self.clock = node.create_publisher(Clock, '/clock', QoSProfile(
                 depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+            self._clock_message, self._factory = Clock, ros_factory()
         self.published = 0
         self.played_ns = 0
         self.unconverted: Counter = Counter()
 
     def wait_for_subscribers(self, topics: list[str], timeout: float) -> bool:
-        """Wait up to ``timeout`` s until each of ``topics`` has a subscriber."""
+        """Wait up to ``timeout`` s until each of ``topics`` has a subscriber, then until the
+        subscriptions of every topic have stayed as they are for :data:`SETTLE` s (the other
+        topics of the subscribing nodes are discovered a moment later)."""
         deadline = time.monotonic() + timeout
+        counts, since = None, time.monotonic()
         while time.monotonic() < deadline:
-            if all(self.publishers[t].get_subscription_count() > 0 for t in topics):
-                time.sleep(0.3)          # the subscriber's side of the match, too
+            now = [p.get_subscription_count() for p in self.publishers.values()]
+            if now != counts:
+                counts, since = now, time.monotonic()
+            if (all(self.publishers[t].get_subscription_count() > 0 for t in topics)
+                    and time.monotonic() - since >= SETTLE):
                 return True
             time.sleep(0.05)
         return False
@@ -186,12 +197,8 @@ class Player:
             time.sleep(min(left, 1.0 / CLOCK_HZ))
 
     def _publish_clock(self, t_ns: int) -> None:
-        if self.clock is None:
-            return
-        from rosgraph_msgs.msg import Clock
-
-        from laser_tracker.conversions import ros_factory, time_msg
-        self.clock.publish(Clock(clock=time_msg(ros_factory(), t_ns)))
+        if self.clock is not None:
+            self.clock.publish(self._clock_message(clock=time_msg(self._factory, t_ns)))
 
     def flush(self, timeout: float = 0.5) -> None:
         """Give subscribers up to ``timeout`` s in all to acknowledge what was published
@@ -249,8 +256,8 @@ def _play(reader, bag: Path, channels: list[Channel], args: argparse.Namespace,
 
     start_ns = reader.start_time + int(round(args.start * 1e9))
     node = player = None
-    print(start_line, flush=True)
     try:
+        print(start_line, flush=True)
         rclpy.init(args=['laser-tracker'], signal_handler_options=SignalHandlerOptions.NO)
         node = rclpy.create_node(NODE_NAME)
         player = Player(node, channels, args.rate, args.clock)
