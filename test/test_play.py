@@ -213,9 +213,9 @@ def _replayed_tracks(bag: Path, out: Path) -> dict:
 @pytest.mark.skipif(not (ROOT / 'bags' / 'crossing_walkers').exists(),
                     reason='bags/crossing_walkers not generated')
 def test_play_into_the_node_graph_gives_the_offline_replays_tracks(ros_context, tmp_path):
-    """`laser-tracker play BAG --clock` (its own process) into the nodes with use_sim_time
-    (over DDS): every scan's confirmed tracks equal `laser-tracker replay`'s, and the nodes'
-    clock follows the recording."""
+    """`laser-tracker play BAG --clock` (its own process, in real time) into the nodes with
+    use_sim_time (over DDS): no message lost, every scan's confirmed tracks equal
+    `laser-tracker replay`'s, and the nodes' clock follows the recording."""
     from rclpy.parameter import Parameter
 
     from laser_tracker.tools.bag import topics
@@ -227,7 +227,7 @@ def test_play_into_the_node_graph_gives_the_offline_replays_tracks(ros_context, 
     graph = _Graph(ros_context, parameter_overrides=[Parameter('use_sim_time', value=True)])
     try:
         graph.wait_connected()
-        proc = subprocess.Popen([exe, 'play', str(bag), '--clock', '--rate', '2'],
+        proc = subprocess.Popen([exe, 'play', str(bag), '--clock'],
                                 env=dict(os.environ), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         try:

@@ -36,6 +36,7 @@ NODE_NAME = 'laser_tracker_play'
 LATCHED_DEPTH = 100      # a late subscriber gets up to this many messages of a latched topic
 DEPTH = 100
 SETTLE = 0.5             # s without a new subscription before the first message
+LINGER = 0.3             # s the publishers stay after the last message
 
 
 @dataclass
@@ -201,16 +202,18 @@ class Player:
             self.clock.publish(self._clock_message(clock=time_msg(self._factory, t_ns)))
 
     def flush(self, timeout: float = 0.5) -> None:
-        """Give subscribers up to ``timeout`` s in all to acknowledge what was published
-        (best-effort subscribers never do)."""
+        """Before the node goes: give reliable subscribers up to ``timeout`` s in all to
+        acknowledge what was published, and best-effort ones (which never do) :data:`LINGER`
+        s to take the last messages."""
         from rclpy.duration import Duration
 
         deadline = time.monotonic() + timeout
         for pub in self.publishers.values():
             left = deadline - time.monotonic()
             if left <= 0:
-                return
+                break
             pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        time.sleep(LINGER)
 
 
 def _describe(channels: list[Channel], skipped: dict[str, str]) -> str:
