@@ -110,12 +110,20 @@ def _carmen_log(path: Path) -> Path:
     return path
 
 
-def test_a_carmen_log_where_a_recording_is_expected_names_import_carmen(tmp_path):
+def test_files_that_are_not_recordings_are_named_for_what_they_are(tmp_path):
+    from laser_tracker.tools.replay import replay_bag
+
     log = _carmen_log(tmp_path / 'lab.clf')
     assert_one_line(run('laser-tracker', 'summarize', log), 'a CARMEN log, not a recording',
                     f'laser-tracker import-carmen {log} OUT')
     assert_one_line(run('laser-tracker', 'replay', log, '--out', tmp_path / 'r'),
                     'laser-tracker import-carmen')
+    metadata = ROOT / 'bags' / EXP1 / 'metadata.yaml'
+    assert_one_line(run('laser-tracker', 'summarize', metadata),
+                    f'give the rosbag2 folder that holds this file: {metadata.parent}')
+    replay_bag(EXP1, out_dir=tmp_path / 'replayed', progress=False)
+    assert_one_line(run('laser-tracker', 'play', tmp_path / 'replayed'),
+                    'a `laser-tracker replay` output, not a recording')
 
 
 def test_outputs_are_checked_before_any_work(tmp_path):

@@ -115,9 +115,13 @@ def _what_else(path: Path) -> str | None:
 
     recordings = 'a recording is a rosbag2 folder or a ROS 1 .bag file'
     if path.is_dir():
-        if not (path / 'metadata.yaml').is_file():
-            return f'not a rosbag2 folder (no metadata.yaml in it); {recordings}'
-        return None
+        if (path / 'metadata.yaml').is_file():
+            return None
+        if (path / 'summary.json').is_file() and (path / 'tracks.csv').is_file():
+            return ('a `laser-tracker replay` output, not a recording (its summary.json names '
+                    'the recording it replayed)')
+        return f'not a rosbag2 folder (no metadata.yaml in it); {recordings}'
+
     if path.name == 'metadata.yaml':
         return f'give the rosbag2 folder that holds this file: {path.parent}'
     if path.suffix in ('.bag', '.db3', '.mcap'):
