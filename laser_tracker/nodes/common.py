@@ -131,8 +131,9 @@ class ScanWatch:
 
 def check_ros_arguments(args: Iterable[str] | None) -> list[str]:
     """Check the ROS command-line arguments that rcl would refuse with an rcl error and a
-    traceback (``-p`` and ``-r`` rules, parameter files), so the user gets one line naming
-    the argument and the fix (ConfigError); returns the ``--params-file`` paths."""
+    traceback (parameter files, ``-p`` and ``-r`` rules, log levels), so the user gets one
+    line naming the argument and the fix (ConfigError); returns the ``--params-file``
+    paths."""
     from laser_tracker import parameters as registry
 
     args = list(sys.argv if args is None else args)

@@ -49,10 +49,10 @@ class EgoMotionNode(Node):
         self.create_timer(0.05, guard(self, 'timer')(
             lambda: self.publish(self.stage.poll(self.now()))))
         self.scan_watch = common.ScanWatch.of(self, scans.topic_name)
-        c = section
         common.announce(self, f'poses of the scan frame in {node.odom_frame!r}; scanner mount '
-                        f'x={c.mount_x:g} m y={c.mount_y:g} m yaw={c.mount_yaw:g} rad in the '
-                        "odometry's child frame (ego_motion.mount_*)")
+                        f'x={section.mount_x:g} m y={section.mount_y:g} m '
+                        f"yaw={section.mount_yaw:g} rad in the odometry's child frame "
+                        '(ego_motion.mount_*)')
 
     def apply_parameters(self, sections: dict) -> None:
         node = sections['']

@@ -22,10 +22,13 @@ value, is a one-line error. The scanner mount (base -> scanner) comes from the r
 ``/tf_static`` / ``/tf`` when it has them (said so on stderr); a recording whose scan frame
 differs from its odometry's child frame with no known mount gets a warning.
 
-A recording without the odometry topic runs on scan matching alone. Bad input never stops
-the replay: malformed scans and odometry are skipped and counted (one line per reason at the
-end, no floods); a damaged recording ends the replay at the damage with the outputs written
-and the reason in the summary.
+``--scan-topic`` must be a LaserScan topic of the recording and a given ``--odom-topic`` an
+Odometry topic (a relative name means ``/name``); otherwise the error lists the recording's
+topics of that type. A recording without ``/odom`` runs on scan matching alone (said once).
+A new ``--out`` folder is removed again when the replay fails or is interrupted. Bad input
+never stops the replay: malformed scans and odometry are skipped and counted (one line per
+reason at the end, no floods); a damaged recording ends the replay at the damage with the
+outputs written and the reason in the summary.
 
 ``replay_bag`` is the API the ``evaluate`` and ``demo`` commands use.
 """
