@@ -78,6 +78,8 @@ def test_evaluating_a_replay_against_another_recording_is_refused(tmp_path):
     assert_one_line(run('laser-tracker', 'evaluate', tmp_path / 'exp1', 'crossing_walkers',
                         '--no-figures'),
                     'is a replay of', EXP1, 'not of', 'crossing_walkers', '--force')
+    assert_one_line(run('laser-tracker', 'evaluate', tmp_path / 'exp1', EXP1, '--no-figures',
+                        '--scan-topic', '/odom'), '--scan-topic /odom: a nav_msgs/msg/Odometry')
     forced = run('laser-tracker', 'evaluate', tmp_path / 'exp1', 'crossing_walkers',
                  '--no-figures', '--force')
     assert forced.returncode == 0, forced.stderr

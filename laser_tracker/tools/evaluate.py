@@ -355,13 +355,15 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
     static-structure count to any of them, or asks for it on an unlabelled recording.
     """
     from laser_tracker.tools.annotations import ANNOTATION_TOPIC, evaluate_annotated
-    from laser_tracker.tools.bag import resolve_bag
+    from laser_tracker.tools.bag import resolve_bag, scan_topic_of
     from laser_tracker.tools.static_map import StaticMapConfig, evaluate_static
 
     replay = read_replay(folder)
     bag = resolve_bag(bag)
     if not force:
         check_replayed(replay, bag)
+    if scan_topic is not None:
+        scan_topic = scan_topic_of(bag, scan_topic)
     annotation_topic = annotation_topic or ANNOTATION_TOPIC
     kind = recording_kind(bag, annotation_topic)
     if kind == 'reference' and static is None:
