@@ -115,7 +115,8 @@ class _RosFactory(MessageFactory):
     def __init__(self):
         self._classes: dict[str, type] = {}
 
-    def _cls(self, type_name: str):
+    def message_class(self, type_name: str):
+        """The rclpy class of ``pkg/msg/Type`` (ImportError / AttributeError if absent)."""
         cls = self._classes.get(type_name)
         if cls is None:
             pkg, _, name = type_name.split('/')
@@ -124,7 +125,7 @@ class _RosFactory(MessageFactory):
         return cls
 
     def make(self, type_name: str, **fields):
-        return self._cls(type_name)(**fields)
+        return self.message_class(type_name)(**fields)
 
     def float32_array(self, values):
         out = array.array('f')

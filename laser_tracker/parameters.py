@@ -148,6 +148,42 @@ def field_of(node: str, name: str):
     return next(((prefix, f) for n, f in describe(cls) if n == key), None)
 
 
+def near_parameters(name: str) -> str:
+    """``; did you mean A (node), B (node)?`` for the parameters of our nodes whose names are
+    close to ``name`` (difflib), or ''."""
+    import difflib
+
+    owners: dict[str, list[str]] = {}
+    for node, sections in NODE_SECTIONS.items():
+        for prefix, cls in sections.items():
+            for key, _ in describe(cls):
+                owners.setdefault(f'{prefix}.{key}' if prefix else key, []).append(node)
+    near = difflib.get_close_matches(name, list(owners), n=3, cutoff=0.75)
+    if not near:
+        return ''
+    return '; did you mean ' + ', '.join(f'{n} ({", ".join(owners[n])})' for n in near) + '?'
+
+
+def entries_for_other_namespaces(entries: Iterable[ParameterEntry], node: str,
+                                 namespace: str) -> list[ParameterEntry]:
+    """The entries written for ``node`` by its name (not ``/**``) that do not apply to it in
+    ``namespace`` while none of them does: ROS drops them without a word (``ego_motion:``
+    is ``/ego_motion``, not ``/robot1/ego_motion``)."""
+    named = [e for e in entries
+             if e.matches(node, None) and e.key.rstrip('/').rpartition('/')[2] != '**']
+    if any(e.matches(node, namespace) for e in named):
+        return []
+    return named
+
+
+def other_namespace_warning(entry: ParameterEntry, node: str, namespace: str) -> str:
+    """The one-line warning for an entry of :func:`entries_for_other_namespaces`."""
+    fqn = namespace.rstrip('/') + '/' + node
+    return (f'{entry.source}: entry {entry.key!r} does not configure this node, {fqn} (a key '
+            f'without a namespace means the root namespace): its parameters are ignored; '
+            f"write '/**/{node}:' (any namespace) or '{fqn}:'")
+
+
 def is_builtin(name: str) -> bool:
     return name in ROS_BUILTIN or bool(ROS_BUILTIN_PREFIXES) and \
         name.startswith(ROS_BUILTIN_PREFIXES)
@@ -237,13 +273,18 @@ def _check_entries(entries: list[ParameterEntry]) -> None:
     for entry in entries:
         matched = [n for n in NODE_SECTIONS if entry.matches(n, None)]
         if not matched:
+            import difflib
+            name = entry.key.rstrip('/').rpartition('/')[2]
+            near = difflib.get_close_matches(name, list(NODE_SECTIONS), n=1, cutoff=0.6)
             raise ConfigError(f'{entry.source}: {entry.key!r} configures none of the nodes '
-                              f'{", ".join(NODE_SECTIONS)}')
+                              f'{", ".join(NODE_SECTIONS)}'
+                              + (f'; did you mean {near[0]!r}?' if near else ''))
         for name, value in entry.params.items():
             owners = [n for n in matched if is_builtin(name) or field_of(n, name)]
             if not owners:
                 node = matched[0] if len(matched) == 1 else entry.key
-                raise ConfigError(f'{entry.source}: node {node}: unknown parameter {name!r} '
+                raise ConfigError(f'{entry.source}: node {node}: unknown parameter {name!r}'
+                                  f'{near_parameters(name)} '
                                   f"(the nodes' parameters: `laser-tracker config --write -`)")
             for node in owners:
                 check_parameter(node, name, value, entry.source)

@@ -41,9 +41,10 @@ def _offline_tracks(messages):
 
 
 class _Graph:
-    """The nodes plus a feeder and a listener in one executor."""
+    """The nodes plus a feeder and a listener in one executor; ``node_kwargs`` go to each
+    node (e.g. ``parameter_overrides``)."""
 
-    def __init__(self, context):
+    def __init__(self, context, **node_kwargs):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import qos_profile_sensor_data
@@ -63,9 +64,9 @@ class _Graph:
                 self.odom_received += 1
                 super().on_odom(msg)
 
-        self.ego = CountingEgoMotion(context=context)
-        self.nodes = [self.ego, DetectionNode(context=context), TrackingNode(context=context),
-                      ActiveHeadNode(context=context)]
+        self.ego = CountingEgoMotion(context=context, **node_kwargs)
+        self.nodes = [self.ego] + [cls(context=context, **node_kwargs) for cls in
+                                   (DetectionNode, TrackingNode, ActiveHeadNode)]
         self.io = rclpy.create_node('test_feeder', context=context)
         self.scan_pub = self.io.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)
         self.odom_pub = self.io.create_publisher(Odometry, 'odom', qos_profile_sensor_data)
@@ -98,6 +99,25 @@ class _Graph:
             node.destroy_node()
 
 
+def assert_tracks_equal(arrays, expected: dict, atol: float) -> None:
+    """The ``tracks`` MarkerArrays a graph published hold, scan by scan, the ``expected``
+    ``{stamp rounded to 1 us: sorted [(id, x, y)]}``."""
+    from laser_tracker.conversions import objects_from_marker_array
+
+    published = {}
+    for array in arrays:
+        stamp, _, objects = objects_from_marker_array(array)
+        if not math.isnan(stamp):
+            published[round(stamp, 6)] = sorted((o.id, o.x, o.y) for o in objects)
+    assert published.keys() == expected.keys()
+    for stamp, tracks in expected.items():
+        got = published[stamp]
+        assert [t[0] for t in got] == [t[0] for t in tracks], stamp
+        np.testing.assert_allclose(np.reshape([t[1:] for t in got], (-1, 2)),
+                                   np.reshape([t[1:] for t in tracks], (-1, 2)), atol=atol,
+                                   err_msg=str(stamp))
+
+
 def _to_ros(msg, topic):
     from laser_tracker.conversions import (odometry_from_msg, odometry_to_msg, ros_factory,
                                            scan_from_msg, scan_to_msg)
@@ -108,8 +128,6 @@ def _to_ros(msg, topic):
 
 @pytest.mark.skipif(not BAG.exists(), reason=f'{BAG} not generated')
 def test_node_graph_publishes_the_offline_tracks(ros_context):
-    from laser_tracker.conversions import objects_from_marker_array
-
     messages = _bag_messages()
     expected = _offline_tracks(messages)
     assert any(expected.values()), 'the recording should yield confirmed tracks'
@@ -127,17 +145,7 @@ def test_node_graph_publishes_the_offline_tracks(ros_context):
             n = len(graph.tracks)
             graph.scan_pub.publish(_to_ros(msg, topic))
             graph.spin_until(lambda: len(graph.tracks) > n)
-        published = {}
-        for array in graph.tracks:
-            stamp, _, objects = objects_from_marker_array(array)
-            if not math.isnan(stamp):
-                published[round(stamp, 6)] = sorted((o.id, o.x, o.y) for o in objects)
-        assert published.keys() == expected.keys()
-        for stamp, tracks in expected.items():
-            got = published[stamp]
-            assert [t[0] for t in got] == [t[0] for t in tracks], stamp
-            np.testing.assert_allclose([t[1:] for t in got], [t[1:] for t in tracks],
-                                       atol=1e-6, err_msg=str(stamp))
+        assert_tracks_equal(graph.tracks, expected, atol=1e-6)
         # The head was aimed whenever there was a confirmed track to aim at.
         graph.spin_until(lambda: len(graph.commands) > 0)
         cmd = graph.commands[-1]
@@ -192,7 +200,7 @@ def test_out_of_range_parameter_is_refused_with_its_name(ros_context):
                                           'is below the minimum'):
         TrackingNode(context=ros_context,
                      parameter_overrides=[Parameter('hypotheses.w_inc', value=-5.0)])
-    with pytest.raises(ConfigError, match="unknown parameter 'hypotheses.w_extra'"):
+    with pytest.raises(ConfigError, match="no node has a parameter 'hypotheses.w_extra'"):
         TrackingNode(context=ros_context,
                      parameter_overrides=[Parameter('hypotheses.w_extra', value=1.0)])
     node = TrackingNode(context=ros_context,          # an integer is a fine float

@@ -202,6 +202,7 @@ def test_a_plain_override_reaches_the_node_that_has_it_in_a_composed_process(ros
     finally:
         ego.destroy_node()
         tracking.destroy_node()
-    with pytest.raises(ConfigError, match="unknown parameter 'hypotheses.gaet'"):
+    with pytest.raises(ConfigError, match=r"no node has a parameter 'hypotheses.gaet'; did "
+                                          r"you mean hypotheses.gate \(tracking\)"):
         EgoMotionNode(context=ros_context,
                       parameter_overrides=[Parameter('hypotheses.gaet', value=1.0)])

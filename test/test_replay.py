@@ -172,3 +172,45 @@ def test_real_ros1_recording_without_odometry(tmp_path):
     assert summary['confirmed_tracks'] > 5                # people walk past
     _, tracks = read_csv(tmp_path / 'tracks.csv')
     assert len(tracks) > 100
+
+
+def test_topic_options_accept_relative_names_and_refuse_other_types(tmp_path, capsys):
+    """--scan-topic scan means /scan; a topic of another type, or absent, is refused with the
+    recording's topics of the wanted type (replay, evaluate's scan times, train-detector)."""
+    from laser_tracker.tools.bag import read_scan_times, scan_topic_of
+
+    bag = bundled()
+    assert main(['replay', str(bag), '--scan-topic', 'scan', '--odom-topic', 'odom',
+                 '--out', str(tmp_path / 'rel'), '--no-progress']) == 0
+    summary = json.loads((tmp_path / 'rel' / 'summary.json').read_text())
+    assert (summary['scan_topic'], summary['odom_topic']) == ('/scan', '/odom')
+    with pytest.raises(InputFileError, match='--scan-topic /odom: a nav_msgs/msg/Odometry '
+                                             'topic, not sensor_msgs/msg/LaserScan; its '
+                                             'LaserScan topics: /scan'):
+        read_scan_times(bag, '/odom')
+    assert scan_topic_of(bag, None) == '/scan'
+    with pytest.raises(InputFileError, match='--scan-topic /front: no such topic'):
+        scan_topic_of(bag, '/front')
+    without = tmp_path / 'no_odometry'
+    with BagWriter(without) as w:
+        for k in range(3):
+            w.write('/scan', scan_msg(1.0 + 0.2 * k), 1.1 + 0.2 * k)
+    capsys.readouterr()
+    summary = replay_bag(without, progress=False)        # the default /odom may be absent
+    assert summary['odom_topic'] is None
+    assert capsys.readouterr().err.count('ego-motion from scan matching alone') == 1
+    with pytest.raises(InputFileError, match='--odom-topic /odom: no such topic; its '
+                                             'Odometry topics: none'):
+        replay_bag(without, odom_topic='/odom', progress=False)   # a given one may not
+
+
+def test_an_output_folder_that_cannot_be_written_is_named(tmp_path, monkeypatch):
+    from laser_tracker.tools.atomic import OutputPathError, check_output
+
+    assert check_output(tmp_path / 'a' / 'b' / 'new') == tmp_path / 'a' / 'b' / 'new'
+    with pytest.raises(OutputPathError, match='already exists'):
+        check_output(tmp_path)
+    assert check_output(tmp_path, overwrite=True) == tmp_path
+    monkeypatch.setattr('os.access', lambda path, mode: Path(path) != tmp_path)
+    with pytest.raises(OutputPathError, match=f'no permission to write in {tmp_path}'):
+        check_output(tmp_path / 'a' / 'new')

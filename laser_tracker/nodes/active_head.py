@@ -41,6 +41,9 @@ class ActiveHeadNode(Node):
             lambda msg: self.stage.add_pose(ego_motion_from_msgs(msg))), common.SENSOR_IN)
         self.create_subscription(MarkerArray, 'tracks',
                                  guard(self, 'tracks')(self.on_tracks), 10)
+        node = s['']
+        common.announce(self, f'joints {node.pan_joint!r}, {node.tilt_joint!r}; aim points in '
+                        'the frame of the tracks')
 
     def apply_parameters(self, sections: dict) -> None:
         self.stage.reconfigure(sections['head'], sections[''].max_pose_age)

@@ -41,8 +41,9 @@ class DetectionNode(Node):
         self.pairer = StampPairer(streams, common.guarded(self, 'blobs')(self.on_pair))
         self.blobs_pub = self.create_publisher(MarkerArray, 'blobs', common.RELIABLE_OUT)
         guard = common.guarded
-        self.create_subscription(LaserScan, 'scan', guard(self, 'scan')(self.on_scan),
-                                 common.SENSOR_IN)
+        scans = self.create_subscription(LaserScan, 'scan', guard(self, 'scan')(self.on_scan),
+                                         common.SENSOR_IN)
+        self.scan_watch = common.ScanWatch.of(self, scans.topic_name)
         self.create_subscription(Odometry, 'ego_motion', guard(self, 'ego_motion')(
             lambda msg: self.pairer.add('pose', stamp_to_ns(msg.header.stamp), msg)),
             common.SENSOR_IN)
@@ -50,12 +51,15 @@ class DetectionNode(Node):
             self.create_subscription(DiagnosticArray, status_topic, guard(self, status_topic)(
                 lambda msg: self.pairer.add('status', stamp_to_ns(msg.header.stamp), msg)),
                 common.SENSOR_IN)
+        common.announce(self, 'blobs in the frame of the ego_motion poses' + (
+            '' if status_topic else '; every pose trusted (status_topic is empty)'))
 
     def apply_parameters(self, sections: dict) -> None:
         self.stage.reconfigure(sections['grid'], sections['difference'], sections['blobs'],
                                sections['person_detector'])
 
     def on_scan(self, msg: LaserScan) -> None:
+        self.scan_watch.seen()
         scan = scan_from_msg(msg)
         self.pairer.add('scan', scan.stamp_ns, scan)
 

@@ -46,10 +46,15 @@ class EgoMotionNode(Node):
         guard = common.guarded
         self.create_subscription(Odometry, 'odom', guard(self, 'odom')(self.on_odom),
                                  common.ODOMETRY_IN)
-        self.create_subscription(LaserScan, 'scan', guard(self, 'scan')(self.on_scan),
-                                 common.SENSOR_IN)
+        scans = self.create_subscription(LaserScan, 'scan', guard(self, 'scan')(self.on_scan),
+                                         common.SENSOR_IN)
         self.create_timer(0.05, guard(self, 'timer')(
             lambda: self.publish(self.stage.poll(self.now()))))
+        self.scan_watch = common.ScanWatch.of(self, scans.topic_name)
+        common.announce(self, f'poses of the scan frame in {node.odom_frame!r}; scanner mount '
+                        f'x={section.mount_x:g} m y={section.mount_y:g} m '
+                        f"yaw={section.mount_yaw:g} rad in the odometry's child frame "
+                        '(ego_motion.mount_*)')
 
     def apply_parameters(self, sections: dict) -> None:
         node = sections['']
@@ -65,6 +70,7 @@ class EgoMotionNode(Node):
         self.publish(self.stage.add_odometry(odo.stamp, odo.pose, self.now()))
 
     def on_scan(self, msg: LaserScan) -> None:
+        self.scan_watch.seen()
         scan = scan_from_msg(msg)
         self._check_mount(scan.frame_id.lstrip('/'))
         self.publish(self.stage.add_scan(scan, self.now()))

@@ -29,6 +29,8 @@ from laser_tracker.config import ConfigError, describe, field_default, from_dict
 #: Parameter files given on the command line of this process (``--params-file``), for
 #: naming the file in errors; filled by ``common.run``.
 PARAMETER_FILES: list[str] = []
+#: (file, entry, namespace) already warned about, so nodes sharing a process warn once.
+_WARNED: set[tuple[str, str, str]] = set()
 
 
 def _descriptor(field: dataclasses.Field, default) -> ParameterDescriptor:
@@ -90,7 +92,14 @@ class LiveParameters:
                                      for other in registry.NODE_SECTIONS))
         if unknown:
             src = from_files[node_name].sources.get(unknown[0]) or registry.COMMAND_LINE
-            raise ConfigError(f'{src}: node {node_name}: unknown parameter {unknown[0]!r}')
+            raise ConfigError(f'{src}: no node has a parameter {unknown[0]!r}'
+                              f'{registry.near_parameters(unknown[0])} (every parameter: '
+                              '`laser-tracker config --write -`)')
+        for entry in registry.entries_for_other_namespaces(entries, node_name, namespace):
+            if (entry.source, entry.key, namespace) not in _WARNED:
+                _WARNED.add((entry.source, entry.key, namespace))
+                node.get_logger().warning(
+                    registry.other_namespace_warning(entry, node_name, namespace))
         raw = {n: v for n, v in overrides.items()
                if registry.field_of(node_name, n) is not None}
         sources = dict(from_files[node_name].sources)

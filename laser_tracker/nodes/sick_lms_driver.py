@@ -99,13 +99,15 @@ class SickLmsDriverNode(LifecycleNode):
         self._autostart_guard = self.create_guard_condition(self._autostart_transitions)
         self._destroyed = False
         name = self.get_fully_qualified_name()
+        output = (f'scans on {self._scan_pub.topic_name} in frame '
+                  f'{self.config.frame_id!r} once active')
         if self.config.autostart:
             self.get_logger().info(f'autostart: waiting for the LMS2xx on {self.config.port}, '
-                                   f'then configuring and activating')
+                                   f'then configuring and activating; {output}')
             self._start_waiter()
         else:
             self.get_logger().info(f'unconfigured; waiting for a lifecycle manager '
-                                   f'(ros2 lifecycle set {name} configure)')
+                                   f'(ros2 lifecycle set {name} configure); {output}')
 
     # ------------------------------------------------------------------ lifecycle
     @property

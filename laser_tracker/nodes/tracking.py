@@ -38,6 +38,7 @@ class TrackingNode(Node):
                                                  common.RELIABLE_OUT)
         self.create_subscription(MarkerArray, 'blobs',
                                  common.guarded(self, 'blobs')(self.on_blobs), 10)
+        common.announce(self, 'tracks in the frame of the blobs')
 
     def apply_parameters(self, sections: dict) -> None:
         self.stage.reconfigure(sections['hypotheses'], sections['kalman'])

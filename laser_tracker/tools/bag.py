@@ -8,7 +8,7 @@ visualization_msgs/MarkerArray (the moving-object schema of ``laser_tracker.conv
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -128,10 +128,18 @@ class BagWriter:
             pass
 
 
-def _open(path: Path) -> AnyReader:
+def open_reader(path: str | Path) -> AnyReader:
+    """An open AnyReader of the recording at ``path`` (close it after use).
+
+    InputFileError for anything that is not a readable recording, saying what it is when it
+    can tell: a CARMEN log names ``import-carmen``, a rosbag2 metadata file names its folder.
+    """
     path = Path(path)
     if not path.exists():
         raise InputFileError(path, 'no such file or folder')
+    not_a_bag = _what_else(path)
+    if not_a_bag:
+        raise InputFileError(path, not_a_bag)
     try:
         reader = AnyReader([path], default_typestore=TYPESTORE)
         reader.open()
@@ -140,13 +148,84 @@ def _open(path: Path) -> AnyReader:
     return reader
 
 
+def _what_else(path: Path) -> str | None:
+    """Why ``path`` is not a recording, when that is clear before trying to read it."""
+    from laser_tracker.tools.carmen import looks_like_carmen
+
+    recordings = 'a recording is a rosbag2 folder or a ROS 1 .bag file'
+    if path.is_dir():
+        if (path / 'metadata.yaml').is_file():
+            return None
+        if (path / 'summary.json').is_file() and (path / 'tracks.csv').is_file():
+            return ('a `laser-tracker replay` output, not a recording (its summary.json names '
+                    'the recording it replayed)')
+        return f'not a rosbag2 folder (no metadata.yaml in it); {recordings}'
+
+    if path.name == 'metadata.yaml':
+        return f'give the rosbag2 folder that holds this file: {path.parent}'
+    if path.suffix in ('.bag', '.db3', '.mcap'):
+        return None
+    if looks_like_carmen(path):
+        return ('a CARMEN log, not a recording: convert it first with '
+                f'`laser-tracker import-carmen {path} OUT`, then use OUT')
+    return f'not a recording ({recordings})'
+
+
 def topics(path: str | Path) -> dict[str, tuple[str, int]]:
     """``{topic: (msgtype, message count)}`` of a recording."""
-    reader = _open(Path(path))
+    reader = open_reader(path)
     try:
         return {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
     finally:
         reader.close()
+
+
+def iter_records(reader: AnyReader, path: str | Path, connections, start_ns: int | None = None
+                 ) -> Iterator[tuple[object, int, bytes]]:
+    """Yield ``(connection, receive time ns, serialized message)`` of ``connections`` of an
+    open reader in time order, from ``start_ns`` on; damage raises InputFileError."""
+    index = 0
+    try:
+        for conn, t_ns, raw in reader.messages(connections=connections, start=start_ns):
+            index += 1
+            yield conn, t_ns, raw
+    except Exception as exc:
+        raise InputFileError(path, f'damaged recording: {exc}',
+                             f'after message {index}') from None
+
+
+def cdr_converter(reader: AnyReader, msgtype: str) -> Callable[[bytes], bytes] | None:
+    """How a record of ``msgtype`` read by ``reader`` becomes ROS 2 CDR of the Jazzy
+    definition (what rclpy publishes and ``rclpy.serialization.deserialize_message`` reads):
+    as it is when the wire formats agree (a rosbag2 record), converted from ROS 1
+    serialization (``std_msgs/Header`` loses ``seq``), or migrated field by field where the
+    definitions differ (ROS 1 ``visualization_msgs/Marker``: new fields get their defaults).
+    A type Jazzy does not define passes as recorded in a rosbag2 recording; from a ROS 1
+    recording it cannot be converted (None)."""
+    from rosbags.convert.converter import is_same_wireformat, migrate_bytes
+
+    source = reader.typestore
+    if msgtype not in TYPESTORE.fielddefs:
+        return bytes if reader.is2 else None
+    if is_same_wireformat(source, TYPESTORE, msgtype, msgtype):
+        if reader.is2:
+            return bytes
+        return lambda raw: bytes(TYPESTORE.ros1_to_cdr(raw, msgtype))
+    cache: dict = {}
+    return lambda raw: bytes(migrate_bytes(source, TYPESTORE, msgtype, msgtype, cache, raw,
+                                           src_is2=reader.is2, dst_is2=True))
+
+
+def recorded_as_latched(connection) -> bool:
+    """Whether a recording's topic was latched: transient-local offered QoS (rosbag2) or
+    ``latching`` (ROS 1), as tf2's static broadcaster does."""
+    from rosbags.interfaces import QosDurability
+
+    ext = connection.ext
+    if getattr(ext, 'latching', None):
+        return True
+    return any(q.durability == QosDurability.TRANSIENT_LOCAL
+               for q in getattr(ext, 'offered_qos_profiles', None) or ())
 
 
 def iter_messages(path: str | Path, topic_names: Iterable[str]) -> Iterator[tuple[str, int, object]]:
@@ -155,26 +234,18 @@ def iter_messages(path: str | Path, topic_names: Iterable[str]) -> Iterator[tupl
     A message that cannot be deserialised raises InputFileError naming its index and time.
     """
     path = Path(path)
-    reader = _open(path)
+    reader = open_reader(path)
     wanted = set(topic_names)
     try:
         conns = [c for c in reader.connections if c.topic in wanted]
-        index = 0
-        try:
-            for conn, t_ns, raw in reader.messages(connections=conns):
-                try:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                except Exception as exc:
-                    raise InputFileError(path, f'cannot decode {conn.msgtype}: {exc}',
-                                         f'message {index} on {conn.topic} at t={t_ns} ns') \
-                        from None
-                index += 1
-                yield conn.topic, t_ns, msg
-        except InputFileError:
-            raise
-        except Exception as exc:
-            raise InputFileError(path, f'damaged recording: {exc}',
-                                 f'after message {index}') from None
+        for index, (conn, t_ns, raw) in enumerate(iter_records(reader, path, conns)):
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception as exc:
+                raise InputFileError(path, f'cannot decode {conn.msgtype}: {exc}',
+                                     f'message {index} on {conn.topic} at t={t_ns} ns') \
+                    from None
+            yield conn.topic, t_ns, msg
     finally:
         reader.close()
 
@@ -286,11 +357,53 @@ def has_ground_truth(bag: Path) -> bool:
 
 
 SCAN_MSGTYPE = 'sensor_msgs/msg/LaserScan'
+ODOMETRY_MSGTYPE = 'nav_msgs/msg/Odometry'
+
+
+def absolute_topic(name: str) -> str:
+    """A topic name as a recording holds it: a relative name (``scan``) means ``/scan``."""
+    return name if name.startswith('/') else '/' + name
+
+
+def topics_of_type(info: dict[str, tuple[str, int]], msgtype: str) -> list[str]:
+    """The topics of ``msgtype`` among a recording's :func:`topics`, by name."""
+    return sorted(t for t, (typ, _) in info.items() if typ == msgtype)
+
+
+def require_topic(path: str | Path, info: dict[str, tuple[str, int]], name: str, msgtype: str,
+                  option: str) -> str:
+    """``name`` (relative means absolute) as a topic of ``msgtype`` in the recording at
+    ``path`` whose :func:`topics` are ``info``. InputFileError naming ``option`` when the
+    recording has no such topic or it is of another type, listing its topics of that type."""
+    topic = absolute_topic(name)
+    kind = msgtype.rsplit('/', 1)[-1]
+    have = f'its {kind} topics: {", ".join(topics_of_type(info, msgtype)) or "none"}'
+    if topic not in info:
+        raise InputFileError(path, f'{option} {name}: no such topic; {have}')
+    if info[topic][0] != msgtype:
+        raise InputFileError(path, f'{option} {name}: a {info[topic][0]} topic, not '
+                             f'{msgtype}; {have}')
+    return topic
 
 
 def scan_topics(path: str | Path) -> list[str]:
     """The sensor_msgs/LaserScan topics of a recording that hold messages, by name."""
     return sorted(t for t, (typ, n) in topics(path).items() if typ == SCAN_MSGTYPE and n)
+
+
+def scan_topic_of(path: str | Path, name: str | None, option: str = '--scan-topic') -> str:
+    """The LaserScan topic ``name`` of a recording, checked as :func:`require_topic` does, or
+    its only LaserScan topic when ``name`` is None (InputFileError if it has none or several:
+    the error names ``option``)."""
+    info = topics(path)
+    if name is not None:
+        return require_topic(path, info, name, SCAN_MSGTYPE, option)
+    found = topics_of_type(info, SCAN_MSGTYPE)
+    if len(found) != 1:
+        raise InputFileError(path, f'{len(found) or "no"} LaserScan topics'
+                             + (f' ({", ".join(found)}): choose one with {option}' if found
+                                else f' (it has: {", ".join(sorted(info)) or "nothing"})'))
+    return found[0]
 
 
 @dataclass
@@ -311,13 +424,11 @@ class ScanTimes:
 def read_scan_times(path: str | Path, topic: str = SCAN_TOPIC) -> ScanTimes:
     """Receive times and header stamps of every message on ``topic``, in receive order.
 
-    Raises InputFileError when the recording has no such topic.
+    Raises InputFileError when the recording has no such LaserScan topic.
     """
     from laser_tracker.conversions import stamp_to_sec
 
-    if topic not in topics(path):
-        raise InputFileError(path, f'no {topic} topic (LaserScan topics: '
-                             f'{", ".join(scan_topics(path)) or "none"})')
+    topic = require_topic(path, topics(path), topic, SCAN_MSGTYPE, '--scan-topic')
     receive, stamps, frame = [], [], ''
     for _, t_ns, msg in iter_messages(path, [topic]):
         receive.append(int(t_ns))

@@ -256,7 +256,11 @@ def score_demo(detector: PersonDetector, scans: list[Scan]) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from laser_tracker.tools.atomic import check_output, write_json
+
     logging.basicConfig(level=logging.ERROR)
+    if args.json:
+        check_output(args.json, overwrite=True)
     changes = {'model': args.model}
     if args.pair_distance is not None:
         changes['pair_distance'] = args.pair_distance
@@ -316,7 +320,5 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f'\n{DEMO} not found: skipped')
     if args.json:
-        from laser_tracker.tools.atomic import write_json
-
         write_json(args.json, report)
     return 0

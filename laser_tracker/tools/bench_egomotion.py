@@ -398,7 +398,11 @@ def save_figure(path: Path, log, scans, estimates) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import logging
+
+    from laser_tracker.tools.atomic import check_output
     logging.getLogger('laser_tracker.core.egomotion').setLevel(logging.ERROR)
+    if not args.no_figure and args.oracle is None:
+        check_output(args.figure, overwrite=True)       # before minutes of benchmark
     logs = [_log_path(p) for p in args.logs] or [DATA / name for name in DEFAULT_LOGS]
     with_kiss = not args.no_kiss and kiss_available()
     if not args.no_kiss and not with_kiss:

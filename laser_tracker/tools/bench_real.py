@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from laser_tracker import parameters
+from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.data import real_recording
 
 REPO = Path(__file__).resolve().parents[2]
@@ -192,6 +193,8 @@ def _run_one(job) -> tuple[str, str, dict]:
 
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.ERROR)
+    if args.json:
+        check_output(args.json, overwrite=True)
     modes = list(args.modes) + (['custom'] if args.config else [])
     if args.config:
         mode_parameters('custom', args.config)      # a bad file fails before any work

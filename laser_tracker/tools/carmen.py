@@ -167,6 +167,28 @@ def _open_text(path: Path):
     return open(path, encoding='ascii', errors='replace')
 
 
+#: The first word of the lines of a CARMEN log (messages and parameters).
+CARMEN_WORDS = frozenset({'FLASER', 'RLASER', 'LASER3', 'LASER4', 'ROBOTLASER1', 'ROBOTLASER2',
+                          'RAWLASER1', 'RAWLASER2', 'RAWLASER3', 'RAWLASER4', 'ODOM',
+                          'TRUEPOS', 'PARAM', 'NEFF', 'SYNC', 'GPSNMEA'})
+
+
+def looks_like_carmen(path: str | Path, lines: int = 20) -> bool:
+    """Whether the file at ``path`` (plain or gzip) is a CARMEN log: its first ``lines``
+    lines that are not comments start with a CARMEN message name."""
+    try:
+        with _open_text(Path(path)) as fh:
+            head = fh.read(65536)      # a binary file may have no line ends at all
+    except (OSError, EOFError, zlib.error):
+        return False
+    text_lines = head.splitlines()
+    if len(text_lines) > 1:
+        text_lines.pop()               # may be cut off
+    words = [line.split(maxsplit=1)[0] for line in text_lines
+             if line.strip() and not line.lstrip().startswith('#')][:lines]
+    return bool(words) and all(w in CARMEN_WORDS for w in words)
+
+
 def _floats(tokens, path, lineno, what):
     try:
         return np.array(tokens, dtype=np.float64)

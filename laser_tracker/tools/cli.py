@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
                    'convert a ROS 1 bag (LaserScan, Odometry) to rosbag2'),
     'replay': ('laser_tracker.tools.replay', 'run ego-motion, detection and tracking on a bag'),
     'evaluate': ('laser_tracker.tools.evaluate', 'score a replay against ground truth'),
+    'play': ('laser_tracker.tools.play', 'publish a recording into ROS 2 (as ros2 bag play)'),
     'demo': ('laser_tracker.tools.demo', 'replay and evaluate a bundled recording'),
     'animate': ('laser_tracker.tools.animate',
                 'a GIF or MP4 of the scans with the tracks of a replay'),

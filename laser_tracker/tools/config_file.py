@@ -10,17 +10,19 @@ defaults, so every value is declared once, in the code).
 ``--check PATH`` loads a file with the package's one loader, exactly as the nodes and
 ``replay`` do (``laser_tracker.parameters.load``), and reports the first problem (an entry
 that configures none of our nodes, an unknown parameter, a wrong type, a value out of range)
-in one line with exit status 2. ``--namespace NS`` checks it for nodes running in ``NS``.
+in one line with exit status 2. ``--namespace NS`` checks it for nodes running in ``NS`` and
+warns about the entries ROS would ignore there (``ego_motion:`` is the root namespace's).
 """
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from laser_tracker import parameters
 from laser_tracker.config import ConfigError, render_ros_yaml
 from laser_tracker.core.pipeline import PipelineConfig
-from laser_tracker.tools.atomic import atomic_path
+from laser_tracker.tools.atomic import atomic_path, check_output
 
 HEADER = """\
 # laser_tracker parameters, every node (ROS 2 parameter file).
@@ -74,11 +76,18 @@ def run(args: argparse.Namespace) -> int:
         if args.write == '-':
             print(text, end='')
             return 0
+        check_output(args.write, overwrite=True)
         with atomic_path(Path(args.write), overwrite=True) as tmp:
             tmp.write_text(text)
         print(f'wrote {args.write}')
         return 0
     check(args.check, args.namespace)
+    if args.namespace:
+        entries = parameters.read_files([args.check])
+        for node in parameters.NODE_SECTIONS:
+            for entry in parameters.entries_for_other_namespaces(entries, node, args.namespace):
+                print(f'warning: {parameters.other_namespace_warning(entry, node, args.namespace)}',
+                      file=sys.stderr)
     changed = _differences(parameters.load_files([args.check], namespace=args.namespace))
     print(f'{args.check}: valid' + (f'; differs from the defaults in {len(changed)} '
                                      f'parameter(s):' if changed else '; all defaults'))

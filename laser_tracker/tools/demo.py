@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 
 from laser_tracker.errors import LaserTrackerError
-from laser_tracker.tools.atomic import write_json
+from laser_tracker.tools.atomic import check_output, removed_on_failure, write_json
 from laser_tracker.tools.bag import has_ground_truth, resolve_bag
 
 log = logging.getLogger(__name__)
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from laser_tracker.tools.scoring import EvaluationConfig
 
     bag = resolve_bag(args.bag)
-    out = Path(args.out) if args.out else Path('out') / bag.name.removesuffix('.bag')
+    out = check_output(args.out or Path('out') / bag.name.removesuffix('.bag'), overwrite=True)
     eval_config = from_dict(EvaluationConfig, {'threshold': args.threshold})  # before replay
     try:
         from laser_tracker.tools.replay import replay_bag
@@ -71,8 +71,9 @@ def run(args: argparse.Namespace) -> int:
 
     print(f'replaying {bag} -> {out}')
     print('tracks as they are confirmed (odometry frame):', flush=True)
-    summary = replay_bag(bag, config=args.config, out_dir=out, progress=True,
-                         on_confirmed=_printer())
+    with removed_on_failure(out):
+        summary = replay_bag(bag, config=args.config, out_dir=out, progress=True,
+                             on_confirmed=_printer())
     print()
     print('replay summary:')
     print('\n'.join(_summary_lines(summary)))

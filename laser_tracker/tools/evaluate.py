@@ -34,7 +34,7 @@ import numpy as np
 from laser_tracker.core.geometry import interpolate_poses
 from laser_tracker.core.head import HeadConfig, captured_objects, simulate_head
 from laser_tracker.errors import InputFileError, LaserTrackerError
-from laser_tracker.tools.atomic import write_json
+from laser_tracker.tools.atomic import check_output, write_json
 from laser_tracker.tools.figures import pyplot, save_figure
 from laser_tracker.tools.scoring import (EvaluationConfig, Scores, TrackTable, TruthTable,
                                          match_stamps, median_period, score, score_unlabelled,
@@ -325,12 +325,29 @@ def recording_kind(bag: str | Path, annotation_topic: str | None = None) -> str:
     return 'unlabelled'
 
 
+def check_replayed(replay: Replay, bag: Path) -> None:
+    """Refuse a recording other than the one the replay was made of (``summary.json`` names
+    it): the scores would be meaningless. The same path, or a recording of the same name
+    (a copy, a regenerated one), passes."""
+    replayed = replay.summary.get('bag')
+    if not isinstance(replayed, str) or not replayed:
+        return
+    replayed = Path(replayed)
+    if replayed.resolve() == bag.resolve() or replayed.resolve().name == bag.resolve().name:
+        return
+    raise LaserTrackerError(f'{replay.folder} is a replay of {replayed} (its summary.json), '
+                            f'not of {bag}: evaluate it against that recording, or give '
+                            '--force to score it anyway')
+
+
 def evaluate_recording(folder: str | Path, bag: str | Path,
                        config: EvaluationConfig = EvaluationConfig(), *,
                        static: str | None = None, scan_topic: str | None = None,
                        annotation_topic: str | None = None, persons=None,
-                       static_config=None) -> Evaluation:
+                       static_config=None, force: bool = False) -> Evaluation:
     """Score a replay folder against whatever ground truth ``bag`` carries.
+
+    The replay must be of ``bag`` (:func:`check_replayed`) unless ``force``.
 
     Simulated ground truth: :func:`evaluate_replay`; hand annotations:
     ``annotations.evaluate_annotated``; reference poses only: false tracks on static
@@ -338,11 +355,15 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
     static-structure count to any of them, or asks for it on an unlabelled recording.
     """
     from laser_tracker.tools.annotations import ANNOTATION_TOPIC, evaluate_annotated
-    from laser_tracker.tools.bag import resolve_bag
+    from laser_tracker.tools.bag import resolve_bag, scan_topic_of
     from laser_tracker.tools.static_map import StaticMapConfig, evaluate_static
 
     replay = read_replay(folder)
     bag = resolve_bag(bag)
+    if not force:
+        check_replayed(replay, bag)
+    if scan_topic is not None:
+        scan_topic = scan_topic_of(bag, scan_topic)
     annotation_topic = annotation_topic or ANNOTATION_TOPIC
     kind = recording_kind(bag, annotation_topic)
     if kind == 'reference' and static is None:
@@ -782,6 +803,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='--no-ground-truth: a confirmed track slower than this on '
                              f'average (m/s) counts as a false detection (default '
                              f'{d.min_track_speed})')
+    parser.add_argument('--force', action='store_true',
+                        help='score DIR against BAG even if DIR is a replay of another '
+                             'recording (its summary.json names the replayed one)')
     parser.add_argument('--json', metavar='OUT', help='JSON output (default DIR/evaluation.json)')
     parser.add_argument('--no-figures', action='store_true', help='write no figures')
 
@@ -790,6 +814,7 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
     config = config_from_args(args)
     folder = Path(args.dir)
+    check_output(args.json or folder / 'evaluation.json', overwrite=True)
     if args.no_ground_truth:
         if args.bag:
             log.warning('BAG %s ignored with --no-ground-truth', args.bag)
@@ -801,7 +826,8 @@ def run(args: argparse.Namespace) -> int:
         ev = evaluate_recording(folder, args.bag, config, static=args.static_map,
                                 scan_topic=args.scan_topic,
                                 annotation_topic=args.annotation_topic, persons=args.person,
-                                static_config=static_config_from_args(args))
+                                static_config=static_config_from_args(args),
+                                force=args.force)
     result = ev.result
     figures = [] if args.no_figures else write_figures(ev, folder)
     result['figures'] = [str(p) for p in figures]

@@ -27,6 +27,7 @@ from laser_tracker.conversions import (odometry_from_msg, odometry_to_msg, scan_
                                        scan_to_msg, tf_message_to_msg)
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError, LaserTrackerError
+from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.bag import (FACTORY, LATCHED_QOS, TF_STATIC_TOPIC, BagWriter,
                                      iter_messages, topics)
 
@@ -103,8 +104,7 @@ def import_bag(src: str | Path, dst: str | Path, topic_names=None, storage: str 
     """Convert ``src`` into the rosbag2 folder ``dst``; return ``{topic: messages written}``
     (and ``'skipped'``: unusable scans left out)."""
     src, dst = Path(src), Path(dst)
-    if dst.exists() and not overwrite:
-        raise ImportBagError(f'{dst}: already exists (use --overwrite to replace it)')
+    check_output(dst, overwrite)
     index_pos = check_ros1_bag(src)
     try:
         info = topics(src)

@@ -38,6 +38,7 @@ from laser_tracker.conversions import (PlanarOdometry, PlanarTransform, odometry
                                        scan_to_msg, transforms_to_msg)
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools import odometry_noise
+from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.bag import (FACTORY, LATCHED_QOS, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC,
                                      SCAN_TOPIC, TF_STATIC_TOPIC, BagWriter)
 from laser_tracker.tools.carmen import read_carmen
@@ -79,8 +80,7 @@ def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
             frame_id='laser', strict=False, corrected='auto', odometry_noise_model=None,
             seed=0) -> dict:
     """Convert; returns counts ``{'scans': N, 'odometry': M, 'odometry_source': ...}``."""
-    if Path(out).exists() and not overwrite:
-        raise InputFileError(out, 'output already exists (use --overwrite or another name)')
+    check_output(out, overwrite)
     carmen = read_carmen(log_path, max_reading=max_reading, strict=strict)
     reference = corrected == 'yes' or (corrected == 'auto' and is_corrected(carmen, log_path))
     if odometry_noise_model is not None and not reference:
@@ -106,29 +106,25 @@ def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
     if truth is not None:
         events += [(float(stamps[k]), 2, k) for k in range(stamps.size)]
     events.sort(key=lambda e: (e[0], e[1]))
-    try:
-        with BagWriter(out, storage=storage, overwrite=overwrite) as bag:
-            mount = PlanarTransform(0.0, 'base_link', frame_id, 0.0, 0.0, 0.0)
-            bag.write(TF_STATIC_TOPIC, transforms_to_msg(FACTORY, [mount]),
-                      events[0][0] if events else 0.0, qos=LATCHED_QOS)
-            for stamp, what, idx in events:
-                if what == 0:
-                    scan = carmen.scan(idx, frame_id=frame_id, ranges=ranges)
-                    bag.write(SCAN_TOPIC, scan_to_msg(FACTORY, scan), stamp)
-                elif what == 1:
-                    x, y, th = o_poses[idx]
-                    odom = PlanarOdometry(stamp=stamp, x=float(x), y=float(y),
-                                          theta=float(th), vx=float(o_vel[idx, 0]),
-                                          omega=float(o_vel[idx, 1]))
-                    bag.write(ODOM_TOPIC, odometry_to_msg(FACTORY, odom), stamp)
-                else:
-                    x, y, th = truth[idx]
-                    pose = PlanarOdometry(stamp=stamp, x=float(x), y=float(y), theta=float(th),
-                                          frame_id='map', child_frame_id=frame_id)
-                    bag.write(PLATFORM_TRUTH_TOPIC, odometry_to_msg(FACTORY, pose), stamp)
-    except FileExistsError as exc:
-        raise InputFileError(out, 'output already exists (use --overwrite or another name)') \
-            from exc
+    with BagWriter(out, storage=storage, overwrite=overwrite) as bag:
+        mount = PlanarTransform(0.0, 'base_link', frame_id, 0.0, 0.0, 0.0)
+        bag.write(TF_STATIC_TOPIC, transforms_to_msg(FACTORY, [mount]),
+                  events[0][0] if events else 0.0, qos=LATCHED_QOS)
+        for stamp, what, idx in events:
+            if what == 0:
+                scan = carmen.scan(idx, frame_id=frame_id, ranges=ranges)
+                bag.write(SCAN_TOPIC, scan_to_msg(FACTORY, scan), stamp)
+            elif what == 1:
+                x, y, th = o_poses[idx]
+                odom = PlanarOdometry(stamp=stamp, x=float(x), y=float(y),
+                                      theta=float(th), vx=float(o_vel[idx, 0]),
+                                      omega=float(o_vel[idx, 1]))
+                bag.write(ODOM_TOPIC, odometry_to_msg(FACTORY, odom), stamp)
+            else:
+                x, y, th = truth[idx]
+                pose = PlanarOdometry(stamp=stamp, x=float(x), y=float(y), theta=float(th),
+                                      frame_id='map', child_frame_id=frame_id)
+                bag.write(PLATFORM_TRUTH_TOPIC, odometry_to_msg(FACTORY, pose), stamp)
     return {'scans': len(carmen), 'odometry': int(o_stamps.size), 'odometry_source': source,
             'ground_truth': 0 if truth is None else int(truth.shape[0]),
             'beams': carmen.n_beams, 'range_max': carmen.range_max,

@@ -22,10 +22,13 @@ value, is a one-line error. The scanner mount (base -> scanner) comes from the r
 ``/tf_static`` / ``/tf`` when it has them (said so on stderr); a recording whose scan frame
 differs from its odometry's child frame with no known mount gets a warning.
 
-A recording without the odometry topic runs on scan matching alone. Bad input never stops
-the replay: malformed scans and odometry are skipped and counted (one line per reason at the
-end, no floods); a damaged recording ends the replay at the damage with the outputs written
-and the reason in the summary.
+``--scan-topic`` must be a LaserScan topic of the recording and a given ``--odom-topic`` an
+Odometry topic (a relative name means ``/name``); otherwise the error lists the recording's
+topics of that type. A recording without ``/odom`` runs on scan matching alone (said once).
+A new ``--out`` folder is removed again when the replay fails or is interrupted. Bad input
+never stops the replay: malformed scans and odometry are skipped and counted (one line per
+reason at the end, no floods); a damaged recording ends the replay at the damage with the
+outputs written and the reason in the summary.
 
 ``replay_bag`` is the API the ``evaluate`` and ``demo`` commands use.
 """
@@ -49,7 +52,8 @@ from laser_tracker.conversions import odometry_from_msg, scan_from_msg
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError
-from laser_tracker.tools.atomic import atomic_path, write_json
+from laser_tracker.tools.atomic import (atomic_path, check_output, removed_on_failure,
+                                        write_json)
 from laser_tracker.tools.bag import resolve_bag
 
 log = logging.getLogger(__name__)
@@ -70,8 +74,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'namespaced keys (default: any)')
     parser.add_argument('--out', metavar='DIR', help='output folder (default out/<bag name>)')
     parser.add_argument('--scan-topic', default='/scan', help='LaserScan topic (default /scan)')
-    parser.add_argument('--odom-topic', default='/odom',
-                        help='Odometry topic (default /odom; absent = scan matching alone)')
+    parser.add_argument('--odom-topic',
+                        help='Odometry topic (default /odom when the recording has it, else '
+                        'scan matching alone)')
     parser.add_argument('--figure-scan', type=int, metavar='K',
                         help='also draw grid / previous grid / difference / velocities for '
                         'scan K (0-based)')
@@ -118,14 +123,15 @@ def _record_options(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(name)s: %(message)s')
     bag = resolve_bag(args.bag)
-    out = Path(args.out) if args.out else Path('out') / bag.name.removesuffix('.bag')
+    out = check_output(args.out or Path('out') / bag.name.removesuffix('.bag'), overwrite=True)
     node_params = parameters.load_files(args.config, namespace=args.namespace)
     record = _record_options(args)
     if record is not None and record.evaluate:
         _check_evaluable(bag)
-    summary = replay_bag(bag, config=node_params, out_dir=out, scan_topic=args.scan_topic,
-                         odom_topic=args.odom_topic, progress=not args.no_progress,
-                         figure_scan=args.figure_scan, record=record)
+    with removed_on_failure(out):
+        summary = replay_bag(bag, config=node_params, out_dir=out, scan_topic=args.scan_topic,
+                             odom_topic=args.odom_topic, progress=not args.no_progress,
+                             figure_scan=args.figure_scan, record=record)
     skipped = sum(summary['scans_skipped'].values())
     print(f'{summary["scans"]} scans replayed ({skipped} skipped) in '
           f'{summary["timing"]["wall_s"]:.2f} s = {summary["timing"]["scans_per_s"] or 0:.0f} '
@@ -174,14 +180,16 @@ def _configuration(config) -> tuple[PipelineConfig, float, dict]:
 
 
 def replay_bag(bag_path, config=None, out_dir: Path | None = None,
-               scan_topic: str = '/scan', odom_topic: str = '/odom', progress: bool = True,
+               scan_topic: str = '/scan', odom_topic: str | None = None, progress: bool = True,
                figure_scan: int | None = None,
                on_confirmed: Callable[[float, int, float, float, float, float], None] | None
                = None, record=None) -> dict:
     """Replay a recording; return the summary dict (also written as ``summary.json``).
 
     ``config``: None (the defaults), a parameter file path, a PipelineConfig, or the result
-    of ``parameters.load``. Without ``out_dir`` nothing is written (the summary is still
+    of ``parameters.load``. ``scan_topic`` and a given ``odom_topic`` must be topics of their
+    type in the recording (InputFileError); without ``odom_topic``, ``/odom`` is used when the
+    recording has it, else scan matching alone (said on stderr). Without ``out_dir`` nothing is written (the summary is still
     returned). ``on_confirmed(stamp, track_id, x, y, vx, vy)`` is called once per track, when
     it is first confirmed (odometry frame). ``record`` (``tools.record.RecordOptions``): also
     write a recording of the run; its output is checked before the replay starts.
@@ -210,23 +218,27 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
 def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_scan,
             on_confirmed, recorder=None) -> dict:
     """:func:`replay_bag`, feeding ``recorder`` (``tools.record.RunRecorder``) when given."""
-    from laser_tracker.tools.bag import iter_messages, topics
+    from laser_tracker.tools.bag import (ODOM_TOPIC, ODOMETRY_MSGTYPE, SCAN_MSGTYPE,
+                                         iter_messages, require_topic, topics)
     from laser_tracker.tools.mount import recording_mount
 
     bag_path = resolve_bag(bag_path)
     config, odom_wait, node_values = _configuration(config)
     info = topics(bag_path)
-    if scan_topic not in info:
-        raise InputFileError(bag_path, f'no {scan_topic} topic; topics: '
-                             f'{", ".join(sorted(info)) or "none"}')
+    scan_topic = require_topic(bag_path, info, scan_topic, SCAN_MSGTYPE, '--scan-topic')
+    if odom_topic is not None or ODOM_TOPIC in info:
+        odom_topic = require_topic(bag_path, info, odom_topic or ODOM_TOPIC, ODOMETRY_MSGTYPE,
+                                   '--odom-topic')
     wanted = [scan_topic]
-    has_odometry = bool(odom_topic) and odom_topic in info and info[odom_topic][1] > 0
+    has_odometry = odom_topic is not None and info[odom_topic][1] > 0
     if has_odometry:
         wanted.append(odom_topic)
     else:
-        log.info('%s: no %s topic: ego-motion from scan matching alone', bag_path, odom_topic)
+        print(f'{bag_path.name}: no odometry on {odom_topic or ODOM_TOPIC}: ego-motion from '
+              'scan matching alone', file=sys.stderr)
     if out_dir is not None:           # an output that cannot be written fails before work
         out_dir = Path(out_dir)
+        check_output(out_dir, overwrite=True)
         out_dir.mkdir(parents=True, exist_ok=True)
     mount = recording_mount(bag_path, scan_topic, odom_topic if has_odometry else None,
                             config.ego_motion)

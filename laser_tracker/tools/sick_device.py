@@ -114,9 +114,10 @@ class RecordingSource:
             inc = math.pi / (rows.shape[1] - 1)
             self.scans = [(-math.pi / 2, inc, row) for row in rows]
         else:
-            from laser_tracker.tools.bag import read_scans  # rosbags only when a bag is replayed
+            # rosbags only when a bag is replayed
+            from laser_tracker.tools.bag import read_scans, scan_topic_of
 
-            for scan in read_scans(path, topic):
+            for scan in read_scans(path, scan_topic_of(path, topic, '--topic')):
                 if isinstance(scan, Exception):
                     continue
                 self.scans.append((scan.angle_min, scan.angle_increment, scan.ranges))

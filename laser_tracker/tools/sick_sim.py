@@ -9,6 +9,7 @@ import argparse
 import time
 
 from laser_tracker.sick import protocol as P
+from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.sick_device import (DEFAULT_LINK, DEFAULT_TYPE, Corruption,
                                           Lms2xxSimulator, RecordingSource, ScenarioSource)
 
@@ -58,6 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.recording and args.scenario:
         raise SystemExit('laser-tracker sick-sim: give --recording or --scenario, not both')
+    check_output(args.link, overwrite=True)       # the link is replaced when it exists
     ranges = None
     if args.recording:
         ranges = RecordingSource(args.recording, args.topic)

@@ -20,6 +20,7 @@ from pathlib import Path
 from laser_tracker.conversions import (PlanarTransform, objects_to_marker_array,
                                        odometry_to_msg, scan_to_msg, transforms_to_msg)
 from laser_tracker.errors import LaserTrackerError
+from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.bag import (FACTORY, GROUND_TRUTH_TOPIC, LATCHED_QOS, ODOM_TOPIC,
                                      PLATFORM_TRUTH_TOPIC, SCAN_TOPIC, TF_STATIC_TOPIC, BagWriter)
 from laser_tracker.tools.sim.recorder import WORLD_FRAME, Recording, record
@@ -105,11 +106,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         raise SimulateError(f'unknown scenario {args.scenario!r}; known: '
                             f'{", ".join(SCENARIOS)}, all')
-    if not args.overwrite:
-        in_the_way = [str(p) for _, p in jobs if p.exists()]
-        if in_the_way:
-            raise SimulateError(f'{", ".join(in_the_way)}: already exists '
-                                '(use --overwrite to replace it)')
+    for _, target in jobs:
+        check_output(target, args.overwrite)
     for name, target in jobs:
         scenario = build(name, args.seed)
         rec = record(scenario)

@@ -131,18 +131,11 @@ def read_positive(path: str | Path, scan_topic: str | None = None,
                   labels_topic: str = LABELS_TOPIC, box=None) -> list[LabelledScan]:
     """Labelled scans of a positive recording (see the module help)."""
     from laser_tracker.conversions import scan_from_msg
-    from laser_tracker.tools.bag import iter_messages, topics
+    from laser_tracker.tools.bag import iter_messages, scan_topic_of, topics
 
     path = Path(path)
     info = topics(path)
-    if scan_topic is None:
-        scans = _scan_topics(path)
-        if len(scans) != 1:
-            raise InputFileError(path, f'{len(scans)} LaserScan topics ({", ".join(scans)}): '
-                                 'choose one with --scan-topic')
-        scan_topic = scans[0]
-    elif info.get(scan_topic, ('',))[0] != SCAN_TYPE:
-        raise InputFileError(path, f'no LaserScan topic {scan_topic}')
+    scan_topic = scan_topic_of(path, scan_topic)
     wanted = [scan_topic]
     if box is None:
         if info.get(labels_topic, ('',))[0] != POSES_TYPE:
@@ -395,9 +388,12 @@ def best_f1_threshold(p: np.ndarray, y: np.ndarray) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from laser_tracker.tools.atomic import atomic_path, write_json
+    from laser_tracker.tools.atomic import atomic_path, check_output, write_json
     from laser_tracker.tools.data import real_recording
 
+    for output in (args.output, args.json):       # before hours of training
+        if output:
+            check_output(output, overwrite=True)
     try:
         import sklearn  # noqa: F401
     except ImportError:
