@@ -323,7 +323,7 @@ def test_unwritable_output_is_one_line_before_the_replay(tmp_path, capsys, where
     assert run('replay', 'exp3_rotating_static', '--out', tmp_path / 'o', '--record', rec,
                '--no-progress') == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and str(rec) in err and 'cannot write' in err
+    assert len(err.splitlines()) == 1 and str(rec) in err and 'cannot be written' in err
     assert not (tmp_path / 'o').exists()
 
 

@@ -153,10 +153,7 @@ class RunRecorder:
 
     # ---------------------------------------------------------------- output
     def __enter__(self) -> RunRecorder:
-        if self.path.exists() and not self.options.overwrite:
-            raise LaserTrackerError(f'{self.path}: already exists (use --overwrite to replace '
-                                    'it, or choose another name)')
-        try:
+        try:                    # BagWriter checks the output first (tools.atomic.check_output)
             self._bag = BagWriter(self.path, storage=self.options.storage,
                                   overwrite=self.options.overwrite, compress=True).__enter__()
         except OSError as exc:
