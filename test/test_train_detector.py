@@ -113,11 +113,13 @@ def test_box_labels_instead_of_a_labels_topic(tmp_path, capsys):
     # the legs lie within x 0.5 to 3.1 m, |y| < 3; the square (x >= 3.25) and walls do not
     status = _run('train-detector', '--positive', pos, '--negative', neg, '--folds', '0',
                   '--box', '0.5', '3.15', '-2.9', '3.3', '--trees', '10', '--output', model,
-                  '--augment-noise', '0.01', '--augment-resolution', '1.0')
+                  '--augment-noise', '0.01', '--augment-resolution', '1.0',
+                  '--augment-range', '2')
     assert status == 0, capsys.readouterr()
     clf = load_model(model)
     assert clf.recommended_threshold == 0.5
-    assert clf.meta['augmentation'] == {'noise_m': [0.01], 'resolution_deg': [1.0]}
+    assert clf.meta['augmentation'] == {'noise_m': [0.01], 'resolution_deg': [1.0],
+                                        'range_factor': [2.0]}
     assert clf.meta['counts']['legs'] == 40          # two legs in each of the 20 scans
 
 
@@ -129,3 +131,20 @@ def test_unlabelled_positive_recording_is_a_clear_error(tmp_path, capsys):
     assert status == 2
     assert str(neg) in err and '/leg_cluster_positions' in err
     assert not (tmp_path / 'm.npz').exists()
+
+
+def test_range_augmentation_places_the_clusters_farther(tmp_path):
+    """A copy of the scans as if every cluster stood k times farther: its points k times
+    sparser (fewer per cluster), its range feature k times larger, its size the same."""
+    from laser_tracker.core.segmentation import FEATURE_NAMES
+    from laser_tracker.tools.train_detector import cluster_table, read_positive
+    pos, _ = _write_bags(tmp_path, n=4)
+    items = read_positive(pos, box=(0.5, 3.15, -2.9, 3.3))
+    seg = dict(match_radius=0.1, jump_distance=0.13, min_points=3, max_width=1.0)
+    near, far = cluster_table(items, **seg), cluster_table(items, farther=2.0, **seg)
+    legs_near, legs_far = near.X[near.y == 1], far.X[far.y == 1]
+    d = FEATURE_NAMES.index('distance')
+    assert legs_far.shape[0] > 0
+    assert np.median(legs_far[:, d]) == pytest.approx(2 * np.median(legs_near[:, d]), rel=0.1)
+    w = FEATURE_NAMES.index('width')
+    assert np.median(legs_far[:, w]) == pytest.approx(np.median(legs_near[:, w]), abs=0.04)

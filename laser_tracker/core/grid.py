@@ -77,17 +77,23 @@ class GridConfig:
                               'the next.', min=0, max=10)
     free_erosion_jump: float = param(0.5, 'Neighbouring beams whose free ranges differ by this '
                                      'much (m) or more are a depth jump (an object\'s edge), '
-                                     'not one surface: no erosion across it. A beam without '
-                                     'a return beside a return is always bounded by it (it '
-                                     'may have grazed that object\'s edge).', min=0.0,
+                                     'not one surface: no erosion across it.', min=0.0,
                                      max=100.0)
     no_return_bounds: bool = param(
         True, 'A beam without a return frees space only up to the surfaces its neighbours '
-        'see: between two returns, up to the straight line joining them (the echo was lost '
-        'on a dark, specular or grazing stretch of one surface, or the space beyond lies '
-        'between two objects: seen from elsewhere it may hold anything); beside a surface '
-        'seen at grazing incidence (grazing_incidence), up to that surface\'s continuation. '
-        'false = up to no_return_free (paper).')
+        'see: beside a surface seen at grazing incidence (grazing_incidence), up to that '
+        'surface\'s continuation (the echoes fade with the incidence); and, for a scanner '
+        'that loses echoes on surfaces within its range (lost_echoes), between two returns '
+        'up to the straight line joining them (the echo was lost on something there). In '
+        'open space it frees no_return_free as before. false = up to no_return_free '
+        '(paper).')
+    lost_echoes: float = param(
+        0.05, 'The chord between two returns bounds the beams without a return between them '
+        '(no_return_bounds) once at least this share of the scanner\'s '
+        'beams (over its last 200 scans) return nothing between two returns nearer than half '
+        'its range: the scanner loses echoes on surfaces within range (dark, specular, '
+        'grazing), as Hokuyo-class scanners do indoors (8-10 % of their beams in the '
+        'leg_tracker recordings, 0-3 % for SICK LMS logs).', min=0.0, max=1.0)
     grazing_incidence: float = param(
         60.0, 'A surface seen at this angle of incidence or more (deg from its normal) at the '
         'edge of a run of beams without a return is taken to continue into the run '
@@ -224,6 +230,29 @@ class GridBuilder:
         self._ext = np.empty(0, np.float32)
         self._table_key = None
         self._table: RayTable | None = None
+        self.echo_loss = 0.0            # see _loses_echoes
+        self._echo_scans = 0
+
+    def _loses_echoes(self, r, valid, no_return, range_max: float) -> bool:
+        """Whether this scanner loses echoes on surfaces within its range: the share of its
+        beams without a return between two returns nearer than half its range, averaged over
+        its scans (the last ``ECHO_LOSS_SCANS``), is at least ``lost_echoes``. A scanner that
+        returns from every surface in range (a SICK LMS) sees through such a gap into free
+        space; one that loses echoes on dark, specular or grazing surfaces (many Hokuyo-class
+        scanners indoors) may have hit a surface in it."""
+        idx = np.flatnonzero(valid)
+        share = 0.0
+        if idx.size >= 2:
+            beams = np.flatnonzero(no_return)
+            after = np.searchsorted(idx, beams)
+            inner = (after > 0) & (after < idx.size)
+            near = 0.5 * range_max
+            left = r[idx[np.maximum(after - 1, 0)]]
+            right = r[idx[np.minimum(after, idx.size - 1)]]
+            share = np.count_nonzero(inner & (left < near) & (right < near)) / r.size
+        self._echo_scans = min(self._echo_scans + 1, ECHO_LOSS_SCANS)
+        self.echo_loss += (share - self.echo_loss) / self._echo_scans
+        return self.echo_loss >= self.config.lost_echoes
 
     def table(self, scan: Scan) -> RayTable:
         key = (scan.angle_min, scan.angle_increment, scan.n_beams)
@@ -257,20 +286,19 @@ class GridBuilder:
         fr[~valid] = 0.0
         fr[no_return] = limit
         if c.no_return_bounds and no_return.any():
-            np.minimum(fr, no_return_bounds(r, valid, no_return, cos, sin, c), out=fr)
+            chords = self._loses_echoes(r, valid, no_return, scan.range_max)
+            np.minimum(fr, no_return_bounds(r, valid, no_return, cos, sin, c, chords),
+                       out=fr)
         if c.free_erosion:
             raw = fr.copy()
             jump = c.free_erosion_jump
             for j in range(1, min(c.free_erosion, beams - 1) + 1):
                 # A neighbour's shorter free range bounds this beam's when both lie on one
-                # surface (a grazing wall), not across a depth jump (an object's edge); a
-                # beam without a return is bounded by a returning neighbour (its edge).
+                # surface (a grazing wall), not across a depth jump (an object's edge).
                 a, b = raw[:-j], raw[j:]
                 near = np.abs(a - b) < jump
-                np.minimum(fr[j:], np.where(near | (no_return[j:] & valid[:-j]), a, np.inf),
-                           out=fr[j:])
-                np.minimum(fr[:-j], np.where(near | (no_return[:-j] & valid[j:]), b, np.inf),
-                           out=fr[:-j])
+                np.minimum(fr[j:], np.where(near, a, np.inf), out=fr[j:])
+                np.minimum(fr[:-j], np.where(near, b, np.inf), out=fr[:-j])
         ext[beams] = -1.0   # "no beam": never free
         index = self._which
         padded = self.stack[index]
@@ -295,25 +323,35 @@ class GridBuilder:
                          angle_increment=float(scan.angle_increment))
 
 
+#: Scans over which GridBuilder averages the share of beams that lost their echo (the mean
+#: of all scans so far until there are this many): a property of the scanner and the
+#: surfaces it sees, not of one scan.
+ECHO_LOSS_SCANS = 200
 #: Returns that define the surface at the edge of a run of beams without a return ...
 SURFACE_POINTS = 5
 #: ... lying within this distance (m) of the edge return, ...
 SURFACE_SPAN = 0.6
-#: ... and within this RMS distance (m) of one straight line (a wall, not clutter or a corner).
+#: ... and within this RMS distance (m) of one straight line (a wall, not clutter or a corner),
 SURFACE_RMS = 0.03
+#: ... on a surface that runs on for at least this long (m) before the edge (a wall, not the
+#: side of a box, a cart or a robot: the robot of fig8_robot_target lost its evidence to it).
+SURFACE_LENGTH = 1.0
 
 
 def no_return_bounds(r: np.ndarray, valid: np.ndarray, no_return: np.ndarray,
-                     cos: np.ndarray, sin: np.ndarray, config: GridConfig) -> np.ndarray:
+                     cos: np.ndarray, sin: np.ndarray, config: GridConfig,
+                     chords: bool = True) -> np.ndarray:
     """Per beam, the farthest range (m) a beam without a return may free
     (``no_return_bounds``); inf where nothing bounds it. Its run of beams without a return
     lies between the returns before and after it (the run's edges):
 
-    * with both edges, the beam frees space up to the chord joining them;
+    * with both edges, up to the chord joining them, when ``chords`` (the scanner loses
+      echoes on surfaces within its range, ``GridBuilder._loses_echoes``: the beam may
+      have hit anything beyond its neighbours' returns);
     * at an edge whose surface is seen at grazing incidence (``grazing_incidence``), up to
       that surface's continuation: the line through the last ``SURFACE_POINTS`` returns
       before the run (the first ones after it), when they lie within ``SURFACE_SPAN`` of the
-      edge and ``SURFACE_RMS`` of a line.
+      edge and ``SURFACE_RMS`` of a line, on a surface at least ``SURFACE_LENGTH`` long.
 
     Each bound is moved half a cell towards the scanner, so that the cells the surface runs
     through are never freed."""
@@ -341,12 +379,20 @@ def no_return_bounds(r: np.ndarray, valid: np.ndarray, no_return: np.ndarray,
     offset = np.sign(offset) * np.maximum(np.abs(offset) - shift, 0.0)
     line_ok = (span <= SURFACE_SPAN) & (smallest <= SURFACE_RMS ** 2)
     cos_graze = math.cos(math.radians(config.grazing_incidence))
+    # How far each return's surface runs on behind it and ahead of it (returns closer than
+    # free_erosion_jump to the previous one continue the surface).
+    step = np.hypot(*np.diff(q, axis=0).T)
+    run = np.concatenate(([0], np.cumsum(step >= config.free_erosion_jump)))
+    first = np.searchsorted(run, run, side='left')
+    last = np.searchsorted(run, run, side='right') - 1
+    behind = np.hypot(*(q - q[first]).T)
+    ahead = np.hypot(*(q[last] - q).T)
 
     beams = np.flatnonzero(no_return)
     after = np.searchsorted(idx, beams)                  # first return after each beam
     dx, dy = cos[beams], sin[beams]
-    # Between two returns: the chord joining them.
-    both = (after > 0) & (after < idx.size)
+    # Between two returns, for a scanner that loses echoes: the chord joining them.
+    both = (after > 0) & (after < idx.size) & chords
     if both.any():
         a = q[np.maximum(after - 1, 0)]
         b = q[np.minimum(after, idx.size - 1)]
@@ -362,11 +408,13 @@ def no_return_bounds(r: np.ndarray, valid: np.ndarray, no_return: np.ndarray,
         out[beams[bound]] = t[bound]
     if sums.shape[0] == 0 or config.grazing_incidence >= 90.0:
         return out
-    for edge, window in ((after - 1, after - m), (after, after)):   # before, after the run
+    for edge, window, extent in ((after - 1, after - m, behind), (after, after, ahead)):
         has = (edge >= 0) & (edge < idx.size) & (window >= 0) & (window < sums.shape[0])
         w = np.where(has, window, 0)
-        e = idx[np.where(has, edge, 0)]
-        graze = np.abs(cos[e] * nx[w] + sin[e] * ny[w]) <= cos_graze
+        k = np.where(has, edge, 0)
+        e = idx[k]
+        graze = (np.abs(cos[e] * nx[w] + sin[e] * ny[w]) <= cos_graze) & \
+            (extent[k] >= SURFACE_LENGTH)
         along = dx * nx[w] + dy * ny[w]
         with np.errstate(divide='ignore', invalid='ignore'):
             t = offset[w] / along

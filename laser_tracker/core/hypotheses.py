@@ -106,10 +106,12 @@ class HypothesisConfig:
                                      'least this (m/s): a flicker in place (a thin chair leg '
                                      'seen in one scan and missed in the next) is not a '
                                      'moving object. 0 = paper.', min=0.0, max=10.0)
-    confirm_min_travel: float = param(0.0, 'A hypothesis is confirmed only once it is this far '
-                                      '(m) from where it was created: a moving object goes '
-                                      'somewhere; a thin static object flickering in and out '
-                                      'of the scans does not. 0 = paper.', min=0.0, max=100.0)
+    confirm_min_travel: float = param(0.0, 'A hypothesis started by motion blobs is confirmed '
+                                      'only once it is this far (m) from where it was '
+                                      'created: a moving object goes somewhere; a thin static '
+                                      'object flickering in and out of the scans does not '
+                                      '(people have their own rules). 0 = paper.', min=0.0,
+                                      max=100.0)
     merge_distance: float = param(0.3, 'Hypotheses closer than this (m) ...', min=0.0,
                                   max=10.0)
     merge_speed: float = param(0.5, '... whose velocities differ by less than this (m/s) are '
@@ -139,10 +141,10 @@ class HypothesisConfig:
         0.2, 'The scanner speed (m/s) from which ride_along_speed applies.', min=0.0,
         max=10.0)
     ride_along_reach: float = param(
-        1.0, 'A motion blob or person detection within this distance (m) of the scanner that '
-        'keeps its place in the scanner\'s frame from one frame to the next while the '
-        'scanner moves is ignored: the robot\'s own body, before the self-mask has learnt '
-        'it. 0 = off (paper).', min=0.0, max=10.0)
+        1.0, 'A motion blob within this distance (m) of the scanner that keeps its place in '
+        'the scanner\'s frame from one frame to the next while the scanner moves is '
+        'ignored: the robot\'s own body, before the self-mask has learnt it. 0 = off '
+        '(paper).', min=0.0, max=10.0)
     confirm_time: float = param(
         0.0, 'A hypothesis is confirmed only once it has lived this long (s) since it was '
         'created, whatever the scan rate: the paper\'s 4 samples span 0.8 s at its 5 Hz but '
@@ -165,9 +167,11 @@ class HypothesisConfig:
     person_min_travel: float = param(
         1.5, 'A hypothesis started by a person detection is confirmed only once a person '
         'detection supporting it stood in space seen free before (someone who walked in), '
-        'or once it has moved this far (m) from where it started: clutter that looks like '
-        'legs (chair and table legs) stands where the scans have always seen something. '
-        '0 = no such condition.', min=0.0, max=10.0)
+        'or once it has moved this far (m) from where it started, both in the world and in '
+        'the scanner\'s frame: clutter that looks like legs (chair and table legs) stands '
+        'where the scans have always seen something, and a leg-like patch of a wall that '
+        'rides along with a moving robot goes nowhere in its frame. 0 = no such '
+        'condition.', min=0.0, max=10.0)
     person_confirm_samples: int = param(
         30, 'A hypothesis started by a person detection is also confirmed once this many '
         'person detections have supported it, though it was never seen walking: a person '
@@ -223,7 +227,8 @@ _ID, _T, _WEIGHT, _SAMPLES, _CONFIRMED, _SUPPORTED, _BORN = 0, 5, 8, 9, 10, 11, 
 _STATE, _VEL, _POS, _START = slice(1, 5), slice(3, 5), slice(6, 8), slice(13, 15)
 _PERSONS, _STOPPED, _ORIGIN = 15, 16, 17   # _ORIGIN: 0 motion, 1 person, 2 person walked
 _SPREAD = slice(18, 20)                      # least and largest leg separation seen
-_P0 = 20
+_START_LOCAL = slice(20, 22)                 # where it started, in the scanner frame then
+_P0 = 22
 
 
 class HypothesisArrays:
@@ -237,8 +242,9 @@ class HypothesisArrays:
     ``weight`` 0..100, ``samples``, ``confirmed``, ``supported`` (a blob supported it this
     frame), ``born`` (creation stamp), ``start`` (k, 2) where it was created (the later
     blob of its creation pair), ``person_samples`` (supports by person detections),
-    ``stopped`` (held by the occupancy of a stopped object this frame) and ``origin`` (what
-    created it: 0 motion, 1 a person detection, 2 a person detection in space seen free).
+    ``stopped`` (held by the occupancy of a stopped object this frame), ``origin`` (what
+    created it: 0 motion, 1 a person detection, 2 a person detection in space seen free)
+    and ``start_local`` (k, 2) where it was created in the scanner's frame of that moment.
     """
 
     __slots__ = ('data', 'dim')
@@ -287,6 +293,7 @@ class HypothesisArrays:
 
     start = property(lambda self: self.data[:, _START],
                      lambda self, v: self.data.__setitem__((slice(None), _START), v))
+    start_local = property(lambda self: self.data[:, _START_LOCAL])
     person_samples = property(lambda self: self.data[:, _PERSONS].astype(np.int64))
     origin = property(lambda self: self.data[:, _ORIGIN].astype(np.int64))
     stopped = property(lambda self: self.data[:, _STOPPED] > 0.5)
@@ -366,7 +373,7 @@ class HypothesisTracker:
         self.recent: deque = deque(maxlen=64)
         self.prev_origin: np.ndarray | None = None
         self._scanner = np.zeros(3)
-        self._ride = [np.zeros((0, 2)), np.zeros((0, 2))]   # last frame's blobs, people (local)
+        self._ride_local = np.zeros((0, 2))     # last frame's blobs in its scanner frame
         # Confirmed tracks lost recently (resume_time): id, stamp, x, y, is a person.
         self.lost = np.zeros((0, 5))
 
@@ -448,11 +455,8 @@ class HypothesisTracker:
             spread = np.where(person_static, np.nan, spread)   # clutter's "legs" do not swing
         segments, leg = _finite_rows(blobs.segments, blobs.segment_leg)
         if c.ride_along_reach > 0:
-            riding = self._riding_with_scanner(xy, 0)
+            riding = self._riding_with_scanner(xy)
             xy, structure = xy[~riding], structure[~riding]
-            riding = self._riding_with_scanner(persons, 1)
-            persons, confidence = persons[~riding], confidence[~riding]
-            person_free, spread = person_free[~riding], spread[~riding]
         hyp = self.hyp
         k = len(hyp)
         pred = self.filter.predict(hyp.state, hyp.t_state, t) if k else np.zeros((0, 2))
@@ -550,7 +554,11 @@ class HypothesisTracker:
         self._bound_active = bounded
         ready = hyp.samples >= c.confirm_samples
         if c.person_min_travel > 0:
-            travel2 = ((hyp.position - hyp.start) ** 2).sum(axis=1)
+            # Far from where it started both in the world (not clutter the robot passes)
+            # and in the scanner's frame (not something riding along with the robot).
+            travel2 = np.minimum(((hyp.position - hyp.start) ** 2).sum(axis=1),
+                                 ((self._to_scanner(hyp.position) - hyp.start_local) ** 2)
+                                 .sum(axis=1))
             walked = (hyp.origin != 1) | (travel2 >= c.person_min_travel ** 2)
             if c.person_confirm_samples > 0:
                 walked |= hyp.person_samples >= c.person_confirm_samples
@@ -562,7 +570,8 @@ class HypothesisTracker:
         if c.confirm_min_speed > 0:
             ready &= (hyp.velocity ** 2).sum(axis=1) >= c.confirm_min_speed ** 2
         if c.confirm_min_travel > 0:
-            ready &= ((hyp.position - hyp.start) ** 2).sum(axis=1) >= c.confirm_min_travel ** 2
+            travelled = ((hyp.position - hyp.start) ** 2).sum(axis=1) >= c.confirm_min_travel ** 2
+            ready &= travelled | (hyp.origin != 0)
         if c.duplicate_radius > 0 and ready.any() and hyp.confirmed.any():
             ready &= ~self._on_confirmed(hyp)
         hyp.confirmed = hyp.confirmed | ready
@@ -648,15 +657,17 @@ class HypothesisTracker:
             return np.zeros(len(hyp), bool)
         return (self._relative_speed(hyp, motion) < c.ride_along_speed) & ~self._is_person(hyp)
 
-    def _riding_with_scanner(self, xy: np.ndarray, kind: int) -> np.ndarray:
-        """Mask: measurements (motion blobs: kind 0, people: 1) within ``ride_along_reach`` of
-        the scanner that kept their place in its frame since the previous frame (a
-        measurement of that kind within half their world displacement of the same
-        scanner-frame place) while they moved at least ``RIDE_MIN_TRAVEL`` in the world: the
-        robot's own body, before the self-mask has learnt it. Remembers this frame's."""
+    def _riding_with_scanner(self, xy: np.ndarray) -> np.ndarray:
+        """Mask: motion blobs within ``ride_along_reach`` of the scanner that kept their place
+        in its frame since the previous frame (a blob of then within half their world
+        displacement of the same scanner-frame place) while they moved at least
+        ``RIDE_MIN_TRAVEL`` in the world: the robot's own body, before the self-mask has
+        learnt it. Remembers this frame's. (People are not filtered: someone walking beside
+        the robot keeps their place in its frame too, and the body is learnt before a
+        standing person is confirmed.)"""
         local = self._to_scanner(xy)
-        before, pose = self._ride[kind], self.prev_origin
-        self._ride[kind] = local
+        before, pose = self._ride_local, self.prev_origin
+        self._ride_local = local
         out = np.zeros(xy.shape[0], bool)
         if not xy.shape[0] or before.shape[0] == 0 or pose is None:
             return out
@@ -899,6 +910,7 @@ class HypothesisTracker:
         data[:, _SUPPORTED] = 1.0
         data[:, _BORN] = t
         data[:, _START] = new_xy
+        data[:, _START_LOCAL] = self._to_scanner(new_xy)
         data[:, _SPREAD] = np.nan
         self.stats['created'] += n
         return out
@@ -956,6 +968,7 @@ class HypothesisTracker:
         od[:, _SAMPLES] = samples[group[rows]]
         od[:, _BORN] = data[src, _BORN]
         od[:, _START] = data[src, _START]
+        od[:, _START_LOCAL] = data[src, _START_LOCAL]
 
         # A group with any member not started by a person standing where something always
         # stood carries no such restriction.

@@ -17,10 +17,13 @@ is neither matched, nor an obstacle, nor free space, nor a segment:
 * **a footprint** (``footprint``): a polygon in the platform's base frame, as laser_filters'
   box filter and nav2's ``footprint`` take it: returns inside it are the body.
 
-Until the body is learnt it is in every scan, and a scan matcher that sees it finds that the
-robot has not moved (the body matches itself): with ``learn`` on, the scan match also leaves
-out every surface that lies entirely within reach (:meth:`SelfMask.near_surfaces`), so the
-ego-motion, and with it the learning, is right from the first metre.
+Until then a return that has kept its range while the world moved past it by
+``PROVISIONAL_TRAVEL`` is left out of the scan match (:meth:`SelfMask.unlearnt`): the body
+matches itself and would pull the match towards standing still. The body is learnt from
+measured motion only: the odometry increment when there is one (the
+scan match is pulled towards standing still by the body it has not learnt yet: the body
+matches itself), else an accepted match; a motion guessed while a standing robot's matches
+are refused would make anything standing in front of it look like its body.
 
 The mask of a beam is a range: returns up to it (plus ``tolerance``) are the body; a return
 beyond it is the world seen past the body, so a person standing next to the robot is never
@@ -43,6 +46,9 @@ SURFACE_JUMP = 0.15
 #: A beam learnt as body is given up after seeing only the world beyond it while the world
 #: moved past by this many times ``travel``.
 FORGET_FACTOR = 10.0
+#: The world travel (m) past a return that kept its range after which the scan match leaves
+#: it out (``SelfMask.unlearnt``), long before it is learnt as the body.
+PROVISIONAL_TRAVEL = 0.2
 #: The edge of a body part shifts by a beam or two between scans (vibration, a cable, the
 #: beam's footprint): a learnt body range also masks the beams this close to it.
 EDGE_BEAMS = 3
@@ -185,19 +191,15 @@ class SelfMask:
                    scan_time=scan.scan_time, frame_id=scan.frame_id, stamp_ns=scan.stamp_ns)
         return out, masked
 
-    def near_surfaces(self, scan: Scan) -> np.ndarray:
-        """Beams whose return lies on a surface entirely within ``reach`` (maybe the body, or
-        something riding along: not for the scan match); none when ``learn`` is off."""
-        c = self.config
-        r = scan.ranges
-        if not c.learn:
-            return np.zeros(r.size, bool)
-        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
-                                 scan.n_beams)
+    def unlearnt(self, scan: Scan) -> np.ndarray:
+        """Beams of ``scan`` whose return is probably the body but not learnt yet: it has kept
+        its range while the world moved past it by ``PROVISIONAL_TRAVEL`` (a tenth of what
+        learning takes). Not for the scan match: the body matches itself, and would pull
+        the match towards standing still before it is learnt."""
+        self._fit(scan)
         with np.errstate(invalid='ignore'):
-            hit = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
-        rr = np.where(hit, r, 0.0)
-        return hit & (rr <= c.reach) & _surface_within(hit, r, rr * cos, rr * sin, c.reach)
+            kept = np.abs(scan.ranges - self.anchor) <= self.config.tolerance
+        return kept & (self.kept >= PROVISIONAL_TRAVEL) & np.isnan(self.body)
 
     def learn(self, scan: Scan, motion) -> None:
         """Learn from ``scan`` (as received) and the scanner's motion since the previous

@@ -43,8 +43,9 @@ from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, Static
                                            changed_with_history, difference_map, pose_quality,
                                            pose_trusted, relative_motion)
 from laser_tracker.core.geometry import pairwise_distances, transform_points
-from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, \
-    EgoMotionEstimator
+from laser_tracker.core.egomotion import (SOURCE_ICP, SOURCE_ODOMETRY, SOURCE_PARTIAL,
+                                          EgoMotionConfig, EgoMotionEstimate,
+                                          EgoMotionEstimator)
 from laser_tracker.core.grid import FREE, GridBuilder, GridConfig, lookup_stack, transform_grid
 from laser_tracker.core.head import HeadCommand, HeadConfig, HeadPointer
 from laser_tracker.core.hypotheses import FrameResult, HypothesisConfig, HypothesisTracker
@@ -60,6 +61,12 @@ log = logging.getLogger(__name__)
 
 #: Scan points this close (m) to a motion blob do not join the static background.
 MOVER_RADIUS = 0.4
+#: Ego-motion sources whose motion is measured (matched or odometry), which the self-mask
+#: learns from (the odometry increment when there is one: the scan match itself may be
+#: pulled towards standing still by the body it has not learnt yet): a guessed motion (the
+#: constant-velocity model while a standing robot's matches are refused) would make anything
+#: that stands in front of it look like its body.
+MEASURED_MOTION = (SOURCE_ICP, SOURCE_PARTIAL, SOURCE_ODOMETRY)
 
 
 # ------------------------------------------------------------------------------ ego-motion
@@ -198,7 +205,7 @@ class EgoMotion:
         received = scan
         scan, _ = self.self_mask.apply(scan)
         body = self.self_mask.ranges
-        est = self.estimator.update(_without(scan, self.self_mask.near_surfaces(scan)))
+        est = self.estimator.update(_without(scan, self.self_mask.unlearnt(scan)))
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
         if not est.ok or not np.isfinite(pose).all():
@@ -206,7 +213,10 @@ class EgoMotion:
             self.events.note('no pose', _generic(est.reason))
             return None
         self.rules.accept(scan.stamp)
-        self.self_mask.learn(received, est.motion)
+        if est.odometry_motion is not None:      # the wheels' word, independent of the scan
+            self.self_mask.learn(received, est.odometry_motion)
+        elif est.source in MEASURED_MOTION:      # not a guess (constant velocity, first scan)
+            self.self_mask.learn(received, est.motion)
         quality = pose_quality(est)
         if self._restart_pending:
             quality = PoseQuality(quality.variance, quality.unmatched, True)

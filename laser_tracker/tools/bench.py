@@ -20,6 +20,8 @@ SUBJECTS: dict[str, tuple[str, str]] = {
               'latency and drops of the node graph over DDS at 75 Hz'),
     'real': ('laser_tracker.tools.bench_real',
              'the tracker on the public real recordings, scored'),
+    'sims': ('laser_tracker.tools.bench_sims',
+             'the tracker on the bundled simulated recordings, scored'),
 }
 
 

@@ -25,11 +25,15 @@ Without recordings on the command line the leg_tracker training data of the publ
 folder is used (``laser_tracker.tools.data.real_data()``), which is how the packaged model
 was made: ``laser-tracker train-detector --output laser_tracker/models/person_detector.npz``.
 
+Augmentation (``--augment-range``, default 2 and 3): copies of the training scans as if every
+cluster stood 2 and 3 times farther away, so that legs beyond the training recordings' 5 m are
+found (the scans' range noise is not scaled).
+
 Evaluation before the final fit: the groups (one per positive recording, one per negative
 topic; with fewer recordings of a kind than folds, blocks of consecutive scans of each) are
 split into ``--folds`` consecutive blocks; each block is predicted by a model
 trained on the others, on the scans as recorded and resampled to 0.5 and 1 degree between
-beams (SICK LMS resolutions). Printed per fold: recall of the labelled legs, precision
+beams (SICK LMS resolutions), and as if every cluster stood 3 times farther. Printed per fold: recall of the labelled legs, precision
 among the held-out clusters, false legs per negative scan. The leg threshold written to the
 model (unless ``--threshold``) is the one that maximises F1 of the pooled held-out
 predictions at the recorded resolution. The final model is fitted on everything.
@@ -92,6 +96,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--augment-resolution', default='', metavar='DEGREES',
                         help='comma-separated beam spacings (degrees): each adds a copy of '
                         'the training scans resampled to it (a sparser scanner)')
+    parser.add_argument('--augment-range', default='2,3', metavar='FACTORS',
+                        help='comma-separated factors k: each adds a copy of the training '
+                        'scans as if every cluster stood k times farther: beams k times '
+                        'sparser, the range feature k times larger (default 2,3: the '
+                        'training legs stand within 5 m, people are found beyond)')
     parser.add_argument('--trees', type=int, default=50, help='boosting rounds (default 50)')
     parser.add_argument('--depth', type=int, default=3, help='tree depth (default 3)')
     parser.add_argument('--learning-rate', type=float, default=0.2,
@@ -233,15 +242,18 @@ def add_noise(scan: Scan, sigma: float, rng: np.random.Generator) -> Scan:
 
 def cluster_table(items: list[LabelledScan], match_radius: float, jump_distance: float,
                   min_points: int, max_width: float, increment: float | None = None,
-                  noise: float = 0.0, seed: int = 0) -> ClusterTable:
+                  noise: float = 0.0, seed: int = 0, farther: float = 1.0) -> ClusterTable:
     """Features and labels of the clusters of ``items``, optionally of the scans resampled
-    to ``increment`` rad between beams or with ``noise`` metres of range noise."""
+    to ``increment`` rad between beams, with ``noise`` metres of range noise, or seen as if
+    ``farther`` times farther away (at the range of a cluster, its points are then as far
+    apart as ``farther`` times sparser beams put them; its shape in metres is the same)."""
     feats, labels, groups, legs = [], [], [], []
     negative_scans: dict[str, int] = {}
     labelled: dict[str, int] = {}
     rng = np.random.default_rng(seed)
     for item in items:
-        scan = item.scan if increment is None else resample(item.scan, increment)
+        step = increment if farther == 1.0 else abs(item.scan.angle_increment) * farther
+        scan = item.scan if step is None else resample(item.scan, step)
         if noise > 0:
             scan = add_noise(scan, noise, rng)
         c = segment(scan, jump_distance, min_points, max_width)
@@ -265,6 +277,8 @@ def cluster_table(items: list[LabelledScan], match_radius: float, jump_distance:
                 y[match] = 1
                 leg[match] = first_leg + d.argmin(axis=1)[match]
             labelled[item.group] = labelled.get(item.group, 0) + item.legs.shape[0]
+        if farther != 1.0:
+            c.features[:, FEATURE_NAMES.index('distance')] *= farther
         feats.append(c.features)
         labels.append(y)
         legs.append(leg)
@@ -428,7 +442,8 @@ def run(args: argparse.Namespace) -> int:
                                                          'max_width')},
                     'match_radius': args.match_radius, 'classifier': fit_args,
                     'augmentation': {'noise_m': _floats(args.augment_noise),
-                                     'resolution_deg': _floats(args.augment_resolution)},
+                                     'resolution_deg': _floats(args.augment_resolution),
+                                     'range_factor': _floats(args.augment_range)},
                     'recordings': {'positive': [Path(p).name for p in positive],
                                    'negative': [Path(p).name for p in negative]},
                     'counts': {'scans': len(items), 'legs': int((table.y == 1).sum()),
@@ -476,6 +491,10 @@ def _augmented_tables(items, seg, args) -> list[ClusterTable]:
         out.append(cluster_table(items, noise=sigma, seed=args.seed + k, **seg))
     for deg in _floats(args.augment_resolution):
         out.append(cluster_table(items, increment=np.radians(deg), **seg))
+    for k in _floats(args.augment_range):
+        if k < 1:
+            raise LaserTrackerError(f'--augment-range: factors are at least 1, got {k}')
+        out.append(cluster_table(items, farther=k, **seg))
     return out
 
 
@@ -492,7 +511,8 @@ def training_rows(tables: list[ClusterTable], held_out: set[str]):
 def _cross_validate(items, table, augmented, groups, folds, seg, fit_args, threshold):
     blocks = split_groups(groups, folds)
     resampled = {name: cluster_table(items, increment=inc, **seg) for name, inc in RESAMPLED}
-    tables = {'recorded': table, **resampled}
+    tables = {'recorded': table, **resampled,
+              '3x range': cluster_table(items, farther=3.0, **seg)}
     models = [fit(*training_rows([table] + augmented, block), **fit_args) for block in blocks]
     held = {name: [(t.select(b), model.predict_proba(t.X[t.select(b)])[:, 1])
                    for b, model in zip(blocks, models)] for name, t in tables.items()}

@@ -548,7 +548,7 @@ def driving_past_people(seed: int = 10) -> Scenario:
         # until after it has left, then walks on east.
         (6.0, (17.0, 3.0), [(17.0, 1.2, 1.0), (14.6, 0.35, 1.0), 18.0, (39.0, 0.5, 1.1)]),
         # Stands close to the right wall the robot drives along; the robot passes 0.5 m away.
-        (0.0, (26.0, -1.45), [34.0, (31.0, -1.3, 0.8)]),
+        (0.0, (26.0, -1.45), [34.0, (36.0, -1.3, 0.8)]),
         # Out of the door at x = 31 ahead of the robot, walks east slower than it.
         (27.0, (31.5, 3.0), [(31.5, 0.9, 0.9), (41.5, 1.5, 0.9), (44.0, 7.0, 0.9)]),
         # At the corridor's far end: one crosses the hall past its opening from north to
@@ -558,7 +558,11 @@ def driving_past_people(seed: int = 10) -> Scenario:
         (25.0, (42.0, -3.0), [(41.0, -0.8, 1.0), (37.5, -1.25, 1.0), 20.0]),
         (20.0, (31.5, 3.0), [(31.5, 1.3, 0.8), (30.5, 1.3, 0.8), 25.0]),
     ]
-    agents = [_person(rng, i + 1, _walk(t0, first, *moves))
+    # Legs in trousers, as the real robots' training recordings show them (a visible radius
+    # of 6-9 cm).
+    agents = [Person(i + 1, _walk(t0, first, *moves).build(),
+                     GaitConfig(leg_radius=float(rng.uniform(0.06, 0.09)),
+                                leg_spacing=float(rng.uniform(0.14, 0.22))))
               for i, (t0, first, moves) in enumerate(people)]
     return Scenario(name='driving_past_people', seed=seed,
                     description=_doc(driving_past_people),
@@ -566,6 +570,7 @@ def driving_past_people(seed: int = 10) -> Scenario:
                     scan_start=start,
                     lidar=HokuyoConfig(mount_x=DRIVING_MOUNT[0], mount_y=DRIVING_MOUNT[1],
                                        mount_yaw=DRIVING_MOUNT[2], frame_id='right_laser',
+                                       noise_sigma=0.01,
                                        grazing_deg=68.0, grazing_ramp_deg=12.0,
                                        grazing_dropout_probability=0.97,
                                        grazing_reference_range=3.0,

@@ -1,0 +1,99 @@
+"""``laser-tracker bench sims``: the tracker on the bundled simulated recordings, scored.
+
+Replays every bundled recording (``bags/``, made by the scenario simulator, with its true
+objects) in the modes of ``bench real`` (``paper``, ``motion``, ``defaults``, and ``custom``
+with ``--config``), scores each with ``laser-tracker evaluate`` and prints one row per
+recording and mode (``--markdown`` for README.md, ``--json`` for programs): straight paths
+detected, people detected among those passing, false detections, CLEAR MOT over the objects
+in view (MOTA, false-positive frames, ID switches) and the median position error.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from laser_tracker.tools.atomic import check_output
+from laser_tracker.tools.bench_real import MODES, mode_parameters
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--only', nargs='+', metavar='NAME', help='bundled recordings '
+                        '(default: all)')
+    parser.add_argument('--modes', nargs='+', default=list(MODES), choices=list(MODES),
+                        help='configurations to run (default: all three)')
+    parser.add_argument('--config', metavar='YAML', action='append', default=[],
+                        help='a parameter file to run as well (mode "custom")')
+    parser.add_argument('--json', metavar='OUT', help='write the figures as JSON')
+    parser.add_argument('--markdown', action='store_true', help='print a Markdown table')
+    parser.add_argument('--jobs', type=int, default=1, help='replays run in parallel')
+
+
+def score(name: str, mode: str, files) -> dict:
+    """Replay bundled recording ``name`` in ``mode`` and score it."""
+    from laser_tracker.tools.bag import resolve_bag
+    from laser_tracker.tools.evaluate import evaluate_replay
+    from laser_tracker.tools.replay import replay_bag
+
+    logging.basicConfig(level=logging.ERROR)
+    bag = resolve_bag(name)
+    with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_sims_') as tmp:
+        replay_bag(bag, config=mode_parameters(mode, files), out_dir=Path(tmp), progress=False)
+        r = evaluate_replay(Path(tmp), bag).result
+    cm = r['clear_mot']['detectable']
+    median = r['position_error']['median']
+    return {'paths': r['paths_detected'], 'paths_taken': r['paths_taken'],
+            'passing': r['objects_passing'], 'detected': r['objects_detected'],
+            'false_detections': r['false_detections'],
+            'false_positives': cm['num_false_positives'], 'switches': cm['num_switches'],
+            'matches': cm['num_matches'], 'objects': cm['num_objects'],
+            'mota': round(cm['mota'], 3) if cm['mota'] is not None else float('nan'),
+            'median_error': round(median, 3) if median is not None else float('nan')}
+
+
+def _job(job):
+    name, mode, files = job
+    return name, mode, score(name, mode, files)
+
+
+def run(args: argparse.Namespace) -> int:
+    from laser_tracker.tools.bag import bundled_bags
+
+    if args.json:
+        check_output(args.json, overwrite=True)
+    modes = list(args.modes) + (['custom'] if args.config else [])
+    if args.config:
+        mode_parameters('custom', args.config)      # a bad file fails before any work
+    names = args.only or bundled_bags()
+    jobs = [(name, mode, args.config) for name in names for mode in modes]
+    results: dict = {}
+    done = ProcessPoolExecutor(args.jobs).map(_job, jobs) if args.jobs > 1 else map(_job, jobs)
+    for name, mode, row in done:
+        results.setdefault(name, {})[mode] = row
+        if not args.markdown:
+            print(f'{name:<32} {mode:<9} ' + ', '.join(f'{k} {v}' for k, v in row.items()),
+                  flush=True)
+    if args.markdown:
+        print(markdown_table(results, modes))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2) + '\n')
+    return 0
+
+
+def markdown_table(results: dict, modes) -> str:
+    lines = ['| recording | mode | paths found | people detected | false detections | MOTA '
+             '| false-positive frames | ID switches | median error (m) |',
+             '|---|---|---|---|---|---|---|---|---|']
+    for name, rows in results.items():
+        for mode in modes:
+            r = rows.get(mode)
+            if r is None:
+                continue
+            lines.append(f'| `{name}` | {mode} | {r["paths"]} of {r["paths_taken"]} | '
+                         f'{r["detected"]} of {r["passing"]} | {r["false_detections"]} | '
+                         f'{r["mota"]:.3f} | {r["false_positives"]} | {r["switches"]} | '
+                         f'{r["median_error"]:.3f} |')
+    return '\n'.join(lines)
