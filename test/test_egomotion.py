@@ -108,10 +108,8 @@ def test_normals_face_the_scanner_and_follow_the_wall():
 
 def test_align_recovers_a_displaced_pose_from_a_local_map():
     ref_scan = cast(ROOM, (0.0, 0.0, 0.0))
-    pts = ref_scan.points()
-    nrm, ok = scan_normals(pts)
     local = LocalMap(3)
-    local.add((0.0, 0.0, 0.0), pts[ok], nrm[ok])
+    local.add_scan((0.0, 0.0, 0.0), ref_scan.points())
     true_pose = np.array([0.3, -0.2, 8 * DEG])
     src = cast(ROOM, true_pose).points()
     res = align(src, local, true_pose + [0.08, -0.06, 3 * DEG])

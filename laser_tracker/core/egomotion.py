@@ -536,7 +536,7 @@ class EgoMotionEstimator:
             self._distances = tuple(float(v) for v in np.geomspace(hi, lo, n))
         self.stats: Counter = Counter()
         self._notes: Counter = Counter()
-        self._map = icp.LocalMap(c.map_scans)
+        self._map = icp.LocalMap(c.map_scans, c.normal_max_gap)
         self.odometry_noise = AdaptiveNoise(
             (c.odom_sigma_xy ** 2, c.odom_sigma_xy_per_m ** 2, 0.0),
             (c.odom_sigma_theta ** 2, c.odom_sigma_theta_per_m ** 2,
@@ -757,9 +757,7 @@ class EgoMotionEstimator:
     def _add_to_map(self, pts: np.ndarray) -> None:
         if pts.shape[0] < 2:
             return
-        nrm, ok = icp.scan_normals(pts, self.config.normal_max_gap)
-        self._map.add(self._pose, pts[ok], nrm[ok])
-        self._map.build()
+        self._map.add_scan(self._pose, pts)
         self._key_pose = self._pose.copy()
 
     def _init(self, scan, pts, odo, seg, odo_reason) -> EgoMotionEstimate:
