@@ -59,14 +59,15 @@ def _normals(points, max_gap, gap_ratio):
     ok = np.zeros(m, dtype=np.bool_)
     if m < 2:
         return normals, ok
+    rng = np.empty(m)
+    for i in range(m):
+        rng[i] = math.hypot(points[i, 0], points[i, 1])
     tx = np.zeros(m)
     ty = np.zeros(m)
     for i in range(m - 1):
         dx = points[i + 1, 0] - points[i, 0]
         dy = points[i + 1, 1] - points[i, 1]
-        r0 = math.hypot(points[i, 0], points[i, 1])
-        r1 = math.hypot(points[i + 1, 0], points[i + 1, 1])
-        if math.hypot(dx, dy) < max_gap + gap_ratio * min(r0, r1):
+        if math.hypot(dx, dy) < max_gap + gap_ratio * min(rng[i + 1], rng[i]):
             tx[i] += dx       # forward difference where linked
             ty[i] += dy
             tx[i + 1] += dx   # backward difference where linked
@@ -107,16 +108,18 @@ def _add_scan(points, pose, max_gap, gap_ratio, rows, keep_from, cell):
             out[k, 0], out[k, 1], out[k, 2], out[k, 3] = qx, qy, wx, wy
             out[k, 4] = wx * qx + wy * qy
             k += 1
-    sorted_rows, start, grid = _grid_hash(out, cell)
-    return out, sorted_rows, start, grid
+    sorted_rows, order, start, grid = _grid_hash(out, cell)
+    return out, sorted_rows, order, start, grid
 
 
 @jit.kernel
 def _grid_hash(rows, cell):
+    """The rows sorted by hash bucket of their grid cell, their indices in ``rows``, the
+    buckets' starts, and the grid (origin, 1 / cell, cell, cells along x and y, hash mask)."""
     n = rows.shape[0]
     grid = np.zeros(7)
     if n == 0:
-        return rows.copy(), np.zeros(2, np.int64), grid
+        return rows.copy(), np.zeros(0, np.int64), np.zeros(2, np.int64), grid
     ox, oy = rows[0, 0], rows[0, 1]
     hx, hy = ox, oy
     for i in range(n):
@@ -126,7 +129,7 @@ def _grid_hash(rows, cell):
         hy = max(hy, rows[i, 1])
     inv = 1.0 / cell
     size = 16
-    while size < 4 * n:
+    while size < 2 * n:
         size *= 2
     grid[_OX], grid[_OY], grid[_INV], grid[_SIZE] = ox, oy, inv, cell
     grid[_NCX] = int((hx - ox) * inv) + 1
@@ -142,11 +145,14 @@ def _grid_hash(rows, cell):
         start[b + 1] += start[b]
     fill = start[:-1].copy()
     sorted_rows = np.empty((n, 5))
+    order = np.empty(n, np.int64)
     for i in range(n):
         k = fill[bucket[i]]
         fill[bucket[i]] += 1
-        sorted_rows[k] = rows[i]
-    return sorted_rows, start, grid
+        order[k] = i
+        for c in range(5):
+            sorted_rows[k, c] = rows[i, c]
+    return sorted_rows, order, start, grid
 
 
 @jit.kernel
@@ -167,6 +173,8 @@ def _nearest(qx, qy, d, rows, start, grid):
         return -1, False               # farther than d from every map point
     cx = int(math.floor(fx))
     cy = int(math.floor(fy))
+    # the query's distance to its own cell's nearest side (cells)
+    edge = min(fx - cx, cx + 1.0 - fx, fy - cy, cy + 1.0 - fy)
     best = -1
     best_d2 = d * d
     tied = False
@@ -177,8 +185,13 @@ def _nearest(qx, qy, d, rows, start, grid):
                 lo, hi, step = max(cy - k, 0), min(cy + k, ncy - 1), 1
             else:                                    # inside: the ring's two ends
                 lo, hi, step = cy - k, cy + k, 2 * k
+            gx = max(ix - fx, fx - ix - 1.0, 0.0) * cell - _SLACK
+            gx = max(gx, 0.0)
             for iy in range(lo, hi + 1, step):
                 if iy < 0 or iy >= ncy:
+                    continue
+                gy = max(max(iy - fy, fy - iy - 1.0, 0.0) * cell - _SLACK, 0.0)
+                if gx * gx + gy * gy > best_d2:      # the whole cell is farther
                     continue
                 b = _bucket(ix, iy, mask)
                 for j in range(start[b], start[b + 1]):
@@ -190,8 +203,8 @@ def _nearest(qx, qy, d, rows, start, grid):
                         best, best_d2, tied = j, d2, False
                     elif d2 == best_d2 and best >= 0 and j != best:
                         tied = True
-        # every point not visited yet is at least k cells away
-        reach = k * cell - _SLACK
+        # every point not visited yet is at least this far
+        reach = (k + edge) * cell - _SLACK
         if reach > 0.0 and (reach >= d or best_d2 < reach * reach):
             return best, tied
         k += 1
@@ -408,6 +421,39 @@ def _heap_swap(prio, info, a, b):
 
 
 @jit.kernel
+def _no_tree():
+    return (np.zeros(0, np.int64), np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(0),
+            np.zeros((0, 3)), np.zeros((0, 2)))
+
+
+@jit.kernel
+def _tie(qx, qy, d, rows, tree):
+    """``(k, tree)``: the index in ``rows`` of the point cKDTree answers for (qx, qy) when
+    several are exactly as near; ``tree`` (:func:`_no_tree` at first) is built on the first
+    tie."""
+    idx, table, splits, heap_prio, heap_info, points = tree
+    if table.shape[0] == 0:
+        points = np.ascontiguousarray(rows[:, :2])
+        idx, table, splits = _kdtree(points)
+        heap_prio, heap_info = np.zeros(table.shape[0]), np.zeros((table.shape[0], 3))
+    k = _kdtree_nearest(qx, qy, d, points, idx, table, splits, heap_prio, heap_info)
+    return k, (idx, table, splits, heap_prio, heap_info, points)
+
+
+@jit.kernel
+def _nearest_all(queries, d, rows, grid_rows, order, start, grid):
+    out = np.full(queries.shape[0], -1, np.int64)
+    tree = _no_tree()
+    for i in range(queries.shape[0]):
+        j, tied = _nearest(queries[i, 0], queries[i, 1], d, grid_rows, start, grid)
+        if j >= 0:
+            out[i] = order[j]
+            if tied:
+                out[i], tree = _tie(queries[i, 0], queries[i, 1], d, rows, tree)
+    return out
+
+
+@jit.kernel
 def _solve3(h, g0, g1, g2, damping):
     """``-(H + damping * trace(H) * I)^-1 g`` for a symmetric 3x3 H (Cramer's rule);
     ``ok`` False when singular."""
@@ -444,12 +490,17 @@ def _normal_equations(a, n, w, c, s, x, y):
     """``(H, g)`` of the Gauss-Newton step: with ``G = (a w)^T a`` (5 x 5) and ``T`` the map
     from (u, v, nx, ny, n.q) to (J_x, J_y, J_theta, r), ``T^T G T = [[H, g], [g^T, .]]``
     (the last row is not needed)."""
-    gram = np.zeros((5, 5))
-    for k in range(n):                    # every sum runs over k in order
-        for i in range(5):
+    gram = np.empty((5, 5))
+    for i in range(5):                    # every sum runs over k in order
+        g0 = g1 = g2 = g3 = g4 = 0.0
+        for k in range(n):
             aw = a[k, i] * w[k]
-            for j in range(5):
-                gram[i, j] = fma(aw, a[k, j], gram[i, j])
+            g0 = fma(aw, a[k, 0], g0)
+            g1 = fma(aw, a[k, 1], g1)
+            g2 = fma(aw, a[k, 2], g2)
+            g3 = fma(aw, a[k, 3], g3)
+            g4 = fma(aw, a[k, 4], g4)
+        gram[i, 0], gram[i, 1], gram[i, 2], gram[i, 3], gram[i, 4] = g0, g1, g2, g3, g4
     t = np.array([[0.0, 0.0, -s, c],
                   [0.0, 0.0, c, s],
                   [c, -s, 0.0, x],
@@ -473,7 +524,7 @@ def _normal_equations(a, n, w, c, s, x, y):
 
 
 @jit.kernel
-def _align(source, pose0, schedule, levels, settings, rows, grid_rows, start, grid):
+def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, start, grid):
     """The Gauss-Newton iterations of :func:`align` over the first ``levels`` association
     distances of ``schedule``; returns (pose, H, scalars, eigenvalues, eigenvectors, last
     step) with scalars = sum_w, iterations, converged, n_in, rms, scale.
@@ -491,9 +542,7 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, start, gr
     matched = np.empty((m, 2))        # the associated scan points
     r = np.empty(m)
     w = np.empty(m)
-    tree, table, splits = np.zeros(0, np.int64), np.zeros((0, 5), np.int64), np.zeros(0)
-    points = np.ascontiguousarray(rows[:, :2])
-    heap_prio, heap_info = np.zeros(0), np.zeros((0, 3))
+    tree = _no_tree()
     n_in = 0
     iterations = 0
     last0 = last1 = last2 = 0.0
@@ -511,14 +560,10 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, start, gr
             j, tied = _nearest(qx, qy, d, grid_rows, start, grid)
             if j < 0:
                 continue
-            row = grid_rows[j]
-            if tied:                  # as the KD-tree breaks the tie
-                if table.shape[0] == 0:
-                    tree, table, splits = _kdtree(points)
-                    heap_prio, heap_info = np.zeros(table.shape[0]), np.zeros((table.shape[0], 3))
-                row = rows[_kdtree_nearest(qx, qy, d, points, tree, table, splits, heap_prio,
-                                           heap_info)]
-            nx, ny, nq = row[_NX], row[_NY], row[_NQ]
+            k = order[j]
+            if tied:                      # as the KD-tree breaks the tie
+                k, tree = _tie(qx, qy, d, rows, tree)
+            nx, ny, nq = rows[k, _NX], rows[k, _NY], rows[k, _NQ]
             a[n_in, 0] = nx * px + ny * py
             a[n_in, 1] = nx * -py + ny * px
             a[n_in, 2], a[n_in, 3], a[n_in, 4] = nx, ny, nq
@@ -564,15 +609,15 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, start, gr
 
 
 @jit.kernel
-def _scan_points(ranges, cos, sin, limits, max_points):
-    """End points of the beams with ``limits[0] <= r < limits[1]`` and
-    ``limits[2] <= r <= limits[3]`` (finite), every ceil(n / max_points)-th of them."""
+def _scan_points(ranges, cos, sin, valid_min, valid_max, min_range, max_range, max_points):
+    """End points of the finite beams with ``valid_min <= r < valid_max`` and
+    ``min_range <= r <= max_range``, every ceil(n / max_points)-th of them."""
     n = ranges.shape[0]
     keep = np.empty(n, np.int64)
     m = 0
     for i in range(n):
         r = ranges[i]
-        if math.isfinite(r) and limits[0] <= r < limits[1] and limits[2] <= r <= limits[3]:
+        if math.isfinite(r) and valid_min <= r < valid_max and min_range <= r <= max_range:
             keep[m] = i
             m += 1
     stride = -(-m // max_points) if m > max_points else 1
@@ -585,13 +630,15 @@ def _scan_points(ranges, cos, sin, limits, max_points):
 
 
 @jit.kernel
-def _points_and_align(ranges, cos, sin, limits, max_points, min_points, pose0, schedule,
-                      settings, rows, grid_rows, start, grid):
-    pts = _scan_points(ranges, cos, sin, limits, max_points)
-    levels = schedule.shape[0]
+def _points_and_align(ranges, cos, sin, valid_min, valid_max, min_range, max_range,
+                      max_points, min_points, pose0, levels, schedule, settings, rows,
+                      grid_rows, order, start, grid):
+    pts = _scan_points(ranges, cos, sin, valid_min, valid_max, min_range, max_range,
+                       max_points)
     if pts.shape[0] < min_points or rows.shape[0] < min_points:
         levels = 0
-    return pts, _align(pts, pose0, schedule, levels, settings, rows, grid_rows, start, grid)
+    return pts, _align(pts, pose0, schedule, levels, settings, rows, grid_rows, order, start,
+                       grid)
 
 
 # --------------------------------------------------------------------------- Python API
@@ -636,8 +683,10 @@ class LocalMap:
     def clear(self) -> None:
         self._sizes.clear()
         empty = np.zeros((0, 5))
-        #: what the kernels read: the rows, the rows in grid order, bucket starts, the grid
-        self.arrays = (empty, empty, np.zeros(2, np.int64), np.zeros(7))
+        #: what the kernels read: the rows, the rows in grid order and their indices in
+        #: the rows, bucket starts, the grid
+        self.arrays = (empty, empty, np.zeros(0, np.int64), np.zeros(2, np.int64),
+                       np.zeros(7))
 
     def add_scan(self, pose, points: np.ndarray) -> None:
         """One scan's points (scanner frame, beam order) seen from ``pose`` (world): those
@@ -734,18 +783,35 @@ def align(source: np.ndarray, ref: LocalMap, pose0, distances=(1.0, 0.5, 0.25, 0
                    source.shape[0])
 
 
-def match_scan(scan_ranges: np.ndarray, cos: np.ndarray, sin: np.ndarray, limits: np.ndarray,
-               max_points: int, min_points: int, ref: LocalMap, pose0,
+def nearest(ref: LocalMap, queries: np.ndarray, distance: float) -> np.ndarray:
+    """For each query point (world frame), the index of the nearest map point (a row of
+    ``ref.rows``) strictly within ``distance``, else -1: exactly what
+    ``cKDTree(ref.rows[:, :2]).query(queries, distance_upper_bound=distance)`` answers,
+    ties included. (:func:`align` associates so.)"""
+    return _nearest_all(np.ascontiguousarray(queries, dtype=float), float(distance),
+                        *ref.arrays)
+
+
+def match_scan(ranges: np.ndarray, cos: np.ndarray, sin: np.ndarray, valid_min: float,
+               valid_max: float, min_range: float, max_range: float, max_points: int,
+               min_points: int, ref: LocalMap, pose0,
                schedule: Schedule) -> tuple[np.ndarray, IcpResult | None]:
-    """The scan's points (:func:`_scan_points`: ``limits`` = the lowest and the excluded
-    highest valid range, then the matcher's min and max range) and, when there are at least
-    ``min_points`` of them and in the map, their :func:`align` result from ``pose0``."""
-    pts, raw = _points_and_align(scan_ranges, cos, sin, limits, max_points, min_points,
-                                 np.asarray(pose0, dtype=float), schedule.distances,
-                                 schedule.settings, *ref.arrays)
-    if pts.shape[0] < min_points or ref.n_points < min_points:
+    """A scan's points and their match, in one kernel call: the end points (scanner frame)
+    of the finite beams with ``valid_min <= r < valid_max`` (the scanner's valid readings)
+    and ``min_range <= r <= max_range``, evenly thinned to at most ``max_points``; and,
+    from ``pose0`` (None: no match wanted), their :func:`align` result when there are at
+    least ``min_points`` of them and in ``ref`` (else None)."""
+    levels = 0 if pose0 is None else schedule.distances.shape[0]
+    pts, raw = _points_and_align(ranges, cos, sin, valid_min, valid_max, min_range, max_range,
+                                 max_points, min_points,
+                                 _ORIGIN if pose0 is None else np.asarray(pose0, dtype=float),
+                                 levels, schedule.distances, schedule.settings, *ref.arrays)
+    if pose0 is None or pts.shape[0] < min_points or ref.n_points < min_points:
         return pts, None
     return pts, _result(raw, pts.shape[0])
+
+
+_ORIGIN = np.zeros(3)
 
 
 def warm_up() -> None:
@@ -756,8 +822,8 @@ def warm_up() -> None:
         local = LocalMap(2)
         local.add_scan(np.zeros(3), np.column_stack((ranges * np.cos(angles),
                                                      ranges * np.sin(angles))))
-        match_scan(ranges, np.cos(angles), np.sin(angles), np.array([0.0, 10.0, 0.0, 10.0]),
-                   100, 3, local, np.zeros(3), Schedule.of())
+        match_scan(ranges, np.cos(angles), np.sin(angles), 0.0, 10.0, 0.0, 10.0, 100, 3, local,
+                   np.zeros(3), Schedule.of())
         scan_normals(np.zeros((3, 2)))
     jit.compiled('ego-motion kernels (ICP)', call)
 
