@@ -48,9 +48,10 @@ class CompileError(LaserTrackerError):
     fix."""
 
 
-def user_cache_dir(environ=os.environ) -> Path:
+def user_cache_dir(environ) -> Path:
     """``$XDG_CACHE_HOME/laser_tracker/numba``, or ``~/.cache/laser_tracker/numba``."""
-    base = environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
+    home = environ.get('HOME') or os.path.expanduser('~')
+    base = environ.get('XDG_CACHE_HOME') or os.path.join(home, '.cache')
     return Path(base) / 'laser_tracker' / 'numba'
 
 
@@ -64,11 +65,13 @@ def writable(folder: Path) -> bool:
     return True
 
 
-def choose_cache(package_cache: Path = PACKAGE_CACHE,
-                 environ=os.environ) -> tuple[str | None, bool, tuple[int, str] | None]:
+def choose_cache(package_cache: Path | None = None,
+                 environ=None) -> tuple[str | None, bool, tuple[int, str] | None]:
     """``(cache_dir, enabled, note)``: the folder to give numba (None: its default, in
-    ``package_cache``), whether to cache at all, and what to log once (level, text) or None.
-    """
+    ``package_cache``, default :data:`PACKAGE_CACHE`), whether to cache at all, and what to
+    log once (level, text) or None."""
+    package_cache = PACKAGE_CACHE if package_cache is None else package_cache
+    environ = os.environ if environ is None else environ
     chosen = environ.get('NUMBA_CACHE_DIR')
     if chosen:
         if writable(Path(chosen)):
@@ -95,8 +98,9 @@ def _configure():
     """Decide the cache once (before the first kernel is declared); return numba or None."""
     try:
         import numba
-    except ImportError:            # pragma: no cover - numba is a dependency
+    except Exception as exc:  # noqa: BLE001 - not installed, or its LLVM cannot load
         _state.setdefault('cache', False)
+        _state.setdefault('missing', ' '.join(f'{type(exc).__name__}: {exc}'.split()))
         return None
     if 'cache' not in _state:
         cache_dir, enabled, note = choose_cache()
@@ -109,10 +113,10 @@ def _configure():
 def kernel(function: Callable) -> Callable:
     """``function`` compiled by numba (``njit``, cached on disk where possible)."""
     numba = _configure()
-    if numba is None:              # pragma: no cover - numba is a dependency
+    if numba is None:
         def missing(*args, **kwargs):
-            raise CompileError('numba is not installed: install it (pip install numba, or '
-                               'apt install python3-numba)')
+            raise CompileError(f'numba cannot be imported ({_state["missing"]}): install it '
+                               f'(pip install numba, or apt install python3-numba)')
         return missing
     return numba.njit(cache=_state['cache'], nogil=True)(function)
 
@@ -274,18 +278,23 @@ def blas_dot(x, y, n):
 @kernel
 def einsum_dot(x, y, n):
     """``np.einsum('i,i->', x[:n], y[:n])`` (so also ``'ij,ij->'`` of contiguous arrays,
-    flattened) as numpy adds: two lanes, blocks of 8 from their end."""
-    lane0 = 0.0
-    lane1 = 0.0
-    i = 0
-    while n - i >= 8:
-        for q in (6, 4, 2, 0):
-            lane0 = x[i + q] * y[i + q] + lane0
-            lane1 = x[i + q + 1] * y[i + q + 1] + lane1
-        i += 8
-    while i < n:
-        lane0 = x[i] * y[i] + lane0
-        if i + 1 < n:
-            lane1 = x[i + 1] * y[i + 1] + lane1
-        i += 2
-    return 0.0 + (lane0 + lane1)
+    flattened) as numpy adds: per buffer of 8,192 values two lanes, in blocks of 8 taken
+    from their end; the buffers' sums added in turn."""
+    total = 0.0
+    for first in range(0, n, 8192):
+        end = min(first + 8192, n)
+        lane0 = 0.0
+        lane1 = 0.0
+        i = first
+        while end - i >= 8:
+            for q in (6, 4, 2, 0):
+                lane0 = x[i + q] * y[i + q] + lane0
+                lane1 = x[i + q + 1] * y[i + q + 1] + lane1
+            i += 8
+        while i < end:
+            lane0 = x[i] * y[i] + lane0
+            if i + 1 < end:
+                lane1 = x[i + 1] * y[i + 1] + lane1
+            i += 2
+        total = total + (lane0 + lane1)
+    return total
