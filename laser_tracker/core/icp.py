@@ -2,7 +2,7 @@
 
 The pieces used by :mod:`laser_tracker.core.egomotion`:
 
-* :func:`scan_points`: the points a scan gives the matcher (valid beams within the range
+* :func:`match_scan`: the points a scan gives the matcher (valid beams within the range
   limits, evenly thinned) and, when a match is wanted, :func:`align`'s result for them: one
   kernel call per scan.
 * :class:`LocalMap`: the last few key scans' points and normals in the odometry (world)
@@ -16,10 +16,14 @@ The pieces used by :mod:`laser_tracker.core.egomotion`:
   normalised eigen-decomposition (degeneracy). Acceptance and the odometry prior are the
   caller's (``egomotion``).
 
-Nearest neighbours: map points are hashed by grid cell (``CELL`` m); a query visits rings
-of cells around its own until no unvisited cell can hold a closer point or one within the
-association distance. The answer is exactly the nearest map point strictly within the
-distance, ties going to the lowest map index (the oldest key scan).
+Nearest neighbours (:func:`nearest`): map points are hashed by grid cell (``CELL`` m); a
+query visits rings of cells around its own, skipping cells farther than the nearest point
+found, until no unvisited cell can hold a nearer point within the association distance. The
+answer is the nearest map point strictly within the distance; when several are exactly as
+near (quantised ranges make that common) it is the one scipy's cKDTree would return: a
+KD-tree built as cKDTree builds it (leafsize 16, sliding midpoint) answers those queries.
+So associations, and with the sums added in numpy's order (``jit``), poses are bit for bit
+those of the numpy formulation with cKDTree.
 
 Poses are ``(x, y, theta)`` of the scanner in the world frame; a correction ``delta`` is
 applied on the right (``pose (+) delta``), i.e. it is expressed in the scanner frame, and the
@@ -506,21 +510,22 @@ def _normal_equations(a, n, w, c, s, x, y):
                   [c, -s, 0.0, x],
                   [s, c, 0.0, y],
                   [0.0, 0.0, 0.0, -1.0]])
-    half = np.zeros((3, 5))               # rows 0-2 of T^T G
-    for p in range(3):
-        for j in range(5):
-            acc = 0.0
-            for k in range(5):
-                acc = fma(t[k, p], gram[k, j], acc)
-            half[p, j] = acc
-    m = np.zeros((3, 4))
-    for p in range(3):
-        for q in range(4):
-            acc = 0.0
-            for k in range(5):
-                acc = fma(half[p, k], t[k, q], acc)
-            m[p, q] = acc
+    m = _matmul(_matmul(t.T, gram, 3), t, 3)    # rows 0-2 of T^T G T
     return m[:, :3].copy(), m[0, 3], m[1, 3], m[2, 3]
+
+
+@jit.kernel
+def _matmul(a, b, rows):
+    """The first ``rows`` rows of ``a @ b`` as numpy's BLAS computes small products: each
+    entry a sequence of fused multiply-adds from zero."""
+    out = np.empty((rows, b.shape[1]))
+    for p in range(rows):
+        for q in range(b.shape[1]):
+            acc = 0.0
+            for k in range(a.shape[1]):
+                acc = fma(a[p, k], b[k, q], acc)
+            out[p, q] = acc
+    return out
 
 
 @jit.kernel
@@ -815,16 +820,23 @@ _ORIGIN = np.zeros(3)
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) the kernels now, once per process."""
+    """Compile (or load from the cache) the kernels now, once per process, for the argument
+    types of real scans (the beam table's read-only arrays included), so that no scan
+    compiles."""
+    from laser_tracker.core.scan import beam_table
+
     def call():
-        angles = np.linspace(-1.5, 1.5, 40)
-        ranges = 2.0 + 0.1 * np.cos(3.0 * angles)
+        _, cos, sin = beam_table(-1.5, 0.075, 41)
+        ranges = 2.0 + 0.1 * np.cos(3.0 * np.arange(41) * 0.075)
         local = LocalMap(2)
-        local.add_scan(np.zeros(3), np.column_stack((ranges * np.cos(angles),
-                                                     ranges * np.sin(angles))))
-        match_scan(ranges, np.cos(angles), np.sin(angles), 0.0, 10.0, 0.0, 10.0, 100, 3, local,
-                   np.zeros(3), Schedule.of())
-        scan_normals(np.zeros((3, 2)))
+        schedule = Schedule.of()
+        pts, _ = match_scan(ranges, cos, sin, 0.0, 10.0, 0.0, 10.0, 100, 3, local, None,
+                            schedule)
+        local.add_scan(np.zeros(3), pts)
+        match_scan(ranges, cos, sin, 0.0, 10.0, 0.0, 10.0, 100, 3, local, np.zeros(3),
+                   schedule)
+        nearest(local, pts, 0.1)
+        scan_normals(pts)
     jit.compiled('ego-motion kernels (ICP)', call)
 
 
