@@ -47,8 +47,8 @@ _SLACK = 1e-7
 #: Settings layout for the kernels (a float array, one argument instead of many).
 _KERNEL_RATIO, _STEPS, _TOL_T, _TOL_R, _DAMPING, _CONV_T, _CONV_R, _STRIDE, _N_COARSE = \
     range(9)
-#: Columns of a map row: world point, world normal, normal . point.
-_X, _Y, _NX, _NY, _NQ = range(5)
+#: Columns of a map row after the world point (x, y): world normal, normal . point.
+_NX, _NY, _NQ = 2, 3, 4
 #: Grid description layout: origin, 1 / cell, cell, cells along x and y, hash mask.
 _OX, _OY, _INV, _SIZE, _NCX, _NCY, _MASK = range(7)
 
