@@ -19,8 +19,8 @@ Where the cache is (decided once, when the first kernel is declared):
 :func:`compiled` runs a stage's first kernel call (at the stage's construction, with a tiny
 input) so that compiling happens at start, not in the middle of the first scans, and so
 that a machine where numba cannot compile (an unusual CPU that LLVM does not know) fails at
-start with one line naming the fix (:class:`CompileError`, exit status 2 from the nodes and
-the command-line tools).
+start with one line naming the fix (:class:`CompileError`, a ``ConfigError``: exit status 2
+from the nodes and the command-line tools).
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from laser_tracker.errors import LaserTrackerError
+from laser_tracker.config import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -43,9 +43,11 @@ PACKAGE_CACHE = Path(__file__).resolve().parent / '__pycache__'
 CPU_FIX = 'NUMBA_CPU_NAME=generic'
 
 
-class CompileError(LaserTrackerError):
+class CompileError(ConfigError):
     """numba cannot compile (or load) the kernels on this machine; the message names the
-    fix."""
+    fix. A start-up problem of the machine's configuration (its CPU, numba's install), so
+    the nodes and the command-line tools report it as they report a bad parameter: one line,
+    exit status 2."""
 
 
 def user_cache_dir(environ) -> Path:

@@ -4,8 +4,7 @@
   of Ctrl-C or SIGTERM, every time: rclpy's own signal handling is replaced by a flag that
   the spin loop checks (and a node's ``request_stop()``, if it has one, is called so that a
   long callback such as a lifecycle configure gives up), cleanup runs under a watchdog, and
-  a start-up error (a bad configuration, compiled kernels that cannot be built on this
-  machine) is one line on stderr with exit status 2 (no traceback).
+  a start-up configuration error is one line on stderr with exit status 2 (no traceback).
 * :func:`guarded` wraps a subscription callback so that no message can kill a node: anything
   a publisher on the same topic can send that the conversions or the stage cannot use is a
   throttled warning (with a count) and the node carries on.
@@ -24,7 +23,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from laser_tracker.errors import LaserTrackerError
+from laser_tracker.config import ConfigError
 from laser_tracker.nodes import params
 
 #: Sensor streams we read: best effort, so both best-effort and reliable publishers reach us.
@@ -106,7 +105,7 @@ def run(factories: Callable | Iterable[Callable], args=None, name: str | None = 
             executor.add_node(nodes[-1])
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
-    except LaserTrackerError as exc:   # a bad configuration, kernels that cannot compile
+    except ConfigError as exc:
         print(f'{name}: {exc}', file=sys.stderr, flush=True)
         status = 2
     except (KeyboardInterrupt, ExternalShutdownException):
