@@ -892,10 +892,10 @@ class EgoMotionEstimator:
         # 4-5. the match fused with the prediction, when both pass the checks
         fused, why = self._fuse(res, pts.shape[0], pred, predicted, dt)
         if fused is not None:
-            out = self._accepted(t, res, pred, fused, no_inc, pts.shape[0])
+            out, reseed = self._accepted(t, res, pred, fused, no_inc, pts.shape[0]), False
         else:
-            out = self._coasting(t, res, pred, why, no_inc, pts.shape[0])
-        self._advance(t, out, odo, dt, pts)
+            out, reseed = self._coasting(t, res, pred, why, no_inc, pts.shape[0])
+        self._advance(t, out, odo, dt, pts, reseed)
         return out
 
     # ------------------------------------------------------------------- internals
@@ -933,10 +933,10 @@ class EgoMotionEstimator:
                               _inverse(fused.information + np.diag(fused.prior)), source,
                               reason, pred, res, n_pts)
 
-    def _coasting(self, t, res, pred, why, no_inc, n_pts) -> EgoMotionEstimate:
+    def _coasting(self, t, res, pred, why, no_inc, n_pts) -> tuple[EgoMotionEstimate, bool]:
         """No match: the platform coasts on its prediction; the pose chain goes on. After
-        ``max_lost_scans`` such scans (or with no map to match against) the map is
-        re-seeded."""
+        ``max_lost_scans`` such scans (or with no map to match against) the map is re-seeded
+        from the scan (the second value)."""
         c = self.config
         if pred.odometry is not None:
             source, reason = SOURCE_ODOMETRY, f'ICP refused: {why}'
@@ -949,15 +949,15 @@ class EgoMotionEstimator:
         map_ok = self.matcher.map.n_points >= c.min_points
         if res is not None or not map_ok:
             self._lost += 1  # a match was tried and refused, or there is nothing to match
-        self._reseed = n_pts >= c.min_points and (not map_ok or self._lost >= c.max_lost_scans)
-        if self._reseed:
+        reseed = n_pts >= c.min_points and (not map_ok or self._lost >= c.max_lost_scans)
+        if reseed:
             reason += '; local map re-seeded from this scan'
             self._note('map re-seeded', f'scan at {t:.3f} s: {self._lost} scans without a '
                        f'match: the local map is re-seeded from this scan (the pose chain '
                        f'continues)')
             self.stats['map re-seeded'] += 1
         return self._estimate(t, pred.motion, np.diag(1.0 / pred.information), source, reason,
-                              pred, res, n_pts, coasting=True)
+                              pred, res, n_pts, coasting=True), reseed
 
     def _estimate(self, t, motion, cov, source, reason, pred, res, n_pts,
                   coasting=False) -> EgoMotionEstimate:
@@ -970,7 +970,7 @@ class EgoMotionEstimator:
                                  dt=t - self._stamp, odometry_motion=pred.odometry,
                                  n_points=n_pts, coasting=coasting, **diag)
 
-    def _advance(self, t, est: EgoMotionEstimate, odo, dt, pts) -> None:
+    def _advance(self, t, est: EgoMotionEstimate, odo, dt, pts, reseed: bool) -> None:
         """The pose chain moves on to the scan; the scan joins the local map when it was
         placed by ICP or odometry (a guess would pollute the map) and has moved since the
         last key scan, or re-seeds it."""
@@ -978,14 +978,13 @@ class EgoMotionEstimator:
         self._stamp = t
         self._odo = odo[:2] if odo[0] is not None else (None, -1)
         self._motion, self._dt = est.motion, dt
-        if self._reseed:
+        if reseed:
             self.matcher.clear()
             self._lost = 0
             self.matcher.add_key_scan(self._pose, pts)
         elif est.source != SOURCE_CONSTANT_VELOCITY and \
                 self.matcher.moved_since_key_scan(self._pose):
             self.matcher.add_key_scan(self._pose, pts)
-        self._reseed = False
         self.stats[est.source] += 1
 
     def _reset_state(self) -> None:
@@ -996,7 +995,6 @@ class EgoMotionEstimator:
         self._motion: np.ndarray | None = None
         self._dt = 0.0
         self._lost = 0
-        self._reseed = False
 
     def _note(self, kind: str, message: str, level: int = logging.WARNING) -> None:
         """Log ``message``: first time, then at the 10th, 100th, ... time for its kind."""

@@ -281,7 +281,7 @@ def _split(idx, lo, hi, pts, mins, maxes):
 @jit.kernel
 def _kdtree(pts):
     """cKDTree's nodes for ``pts`` (N, 2): (indices, int table [dim, start, end, less,
-    greater] per node, splits)."""
+    greater] per node, splits, the points' box: min x, min y, max x, max y)."""
     n = pts.shape[0]
     idx = np.arange(n)
     cap = 2 * n + 1
@@ -317,18 +317,17 @@ def _kdtree(pts):
         stack[top] = greater
         stack[top + 1] = less
         top += 2
-    return idx, table[:count].copy(), splits[:count].copy()
+    return idx, table[:count].copy(), splits[:count].copy(), boxes[0].copy()
 
 
 @jit.kernel
-def _kdtree_nearest(qx, qy, d, pts, idx, table, splits, heap_prio, heap_info):
+def _kdtree_nearest(qx, qy, d, pts, idx, table, splits, box, heap_prio, heap_info):
     """cKDTree's ``query(q, k=1, distance_upper_bound=d)``: the index into ``pts`` or -1.
     ``heap_*``: scratch space (one row per node)."""
     bound = d * d
     q = (qx, qy)
     side0 = side1 = 0.0
-    lo0, lo1 = pts[:, 0].min(), pts[:, 1].min()
-    hi0, hi1 = pts[:, 0].max(), pts[:, 1].max()
+    lo0, lo1, hi0, hi1 = box[0], box[1], box[2], box[3]
     s = 0.0
     if qx - hi0 > s:
         s = qx - hi0
@@ -426,8 +425,8 @@ def _heap_swap(prio, info, a, b):
 
 @jit.kernel
 def _no_tree():
-    return (np.zeros(0, np.int64), np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(0),
-            np.zeros((0, 3)), np.zeros((0, 2)))
+    return (np.zeros(0, np.int64), np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(4),
+            np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)))
 
 
 @jit.kernel
@@ -435,13 +434,13 @@ def _tie(qx, qy, d, rows, tree):
     """``(k, tree)``: the index in ``rows`` of the point cKDTree answers for (qx, qy) when
     several are exactly as near; ``tree`` (:func:`_no_tree` at first) is built on the first
     tie."""
-    idx, table, splits, heap_prio, heap_info, points = tree
+    idx, table, splits, box, heap_prio, heap_info, points = tree
     if table.shape[0] == 0:
         points = np.ascontiguousarray(rows[:, :2])
-        idx, table, splits = _kdtree(points)
+        idx, table, splits, box = _kdtree(points)
         heap_prio, heap_info = np.zeros(table.shape[0]), np.zeros((table.shape[0], 3))
-    k = _kdtree_nearest(qx, qy, d, points, idx, table, splits, heap_prio, heap_info)
-    return k, (idx, table, splits, heap_prio, heap_info, points)
+    k = _kdtree_nearest(qx, qy, d, points, idx, table, splits, box, heap_prio, heap_info)
+    return k, (idx, table, splits, box, heap_prio, heap_info, points)
 
 
 @jit.kernel
