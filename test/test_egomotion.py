@@ -15,6 +15,7 @@ from laser_tracker.core.egomotion import (SOURCE_CONSTANT_VELOCITY, SOURCE_ICP, 
                                           AdaptiveNoise, EgoMotionConfig, EgoMotionEstimator,
                                           OdometryBuffer, estimate_track)
 from laser_tracker.core.geometry import between, compose
+from laser_tracker.core import icp
 from laser_tracker.core.icp import LocalMap, align, scan_normals
 from laser_tracker.core.scan import Scan
 from laser_tracker.tools.bag import PoseTrack
@@ -108,10 +109,8 @@ def test_normals_face_the_scanner_and_follow_the_wall():
 
 def test_align_recovers_a_displaced_pose_from_a_local_map():
     ref_scan = cast(ROOM, (0.0, 0.0, 0.0))
-    pts = ref_scan.points()
-    nrm, ok = scan_normals(pts)
     local = LocalMap(3)
-    local.add((0.0, 0.0, 0.0), pts[ok], nrm[ok])
+    local.add_scan((0.0, 0.0, 0.0), ref_scan.points())
     true_pose = np.array([0.3, -0.2, 8 * DEG])
     src = cast(ROOM, true_pose).points()
     res = align(src, local, true_pose + [0.08, -0.06, 3 * DEG])
@@ -119,6 +118,37 @@ def test_align_recovers_a_displaced_pose_from_a_local_map():
     assert np.allclose(res.pose[:2], true_pose[:2], atol=0.01)
     assert abs(res.pose[2] - true_pose[2]) < 0.2 * DEG
     assert res.eigenvalues[0] > 0.05  # a room constrains every direction
+
+
+def test_map_neighbours_are_the_kd_trees_ties_included():
+    """The local map answers as cKDTree(leafsize 16, sliding midpoint) does, also where
+    points are exactly as near (quantised ranges make such ties common)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(11)
+    for trial in range(30):
+        n = int(rng.integers(20, 1500))
+        local = LocalMap(1, max_gap=10.0)           # every point keeps its normal
+        if trial % 3 == 0:                          # a lattice: ties everywhere
+            pts = np.unique(rng.integers(-30, 30, size=(n, 2)) * 0.05, axis=0)
+            q = rng.integers(-64, 64, size=(400, 2)) * 0.025
+        elif trial % 3 == 1:                        # mm-quantised ranges of a room
+            a = np.linspace(-1.5, 1.5, n)
+            r = np.round(3.0 + np.sin(3.0 * a) + 0.2 * np.sin(17.0 * a), 3)
+            pts = np.column_stack((r * np.cos(a), r * np.sin(a)))
+            q = pts[rng.integers(0, n, 400)] + np.round(rng.normal(0.0, 0.05, (400, 2)), 3)
+        else:
+            pts = rng.normal(size=(n, 2)) * 4.0
+            q = rng.normal(size=(400, 2)) * 5.0
+        order = np.argsort(np.arctan2(pts[:, 1], pts[:, 0]), kind='stable')
+        pts = pts[order]
+        local.add_scan((0.0, 0.0, 0.0), pts)
+        tree = cKDTree(local.rows[:, :2], leafsize=16, balanced_tree=False,
+                       compact_nodes=False)
+        for d in (0.05, 0.3, 1.0, 50.0):
+            _, want = tree.query(q, k=1, distance_upper_bound=d)
+            got = icp.nearest(local, q, d)
+            np.testing.assert_array_equal(np.where(got < 0, local.n_points, got), want)
 
 
 # ---------------------------------------------------------------- synthetic motions
@@ -252,6 +282,48 @@ def test_all_max_range_scan_uses_odometry():
     est.add_odometry(0.6, path[3])
     e3 = est.update(scan(3))
     assert e3.source == SOURCE_ICP, e3.reason
+
+
+@pytest.mark.parametrize('beams', [1, 3, 4096])
+def test_scans_of_any_beam_count_get_a_pose(beams):
+    """A single beam, three beams, 4,096 beams: never a crash; too few points coast on the
+    odometry, many are matched (thinned to max_points)."""
+    rng = np.random.default_rng(5)
+    path = [np.array([0.05 * k, 0.0, 0.5 * k * DEG]) for k in range(4)]
+    est = EgoMotionEstimator()
+    for k, p in enumerate(path):
+        est.add_odometry(0.2 * k, p)
+        scan = cast(ROOM, p, n_beams=max(beams, 3), sigma=0.002, rng=rng, stamp=0.2 * k)
+        if beams == 1:                              # straight ahead only
+            scan = Scan(stamp=scan.stamp, ranges=scan.ranges[1:2], angle_min=0.0,
+                        angle_increment=0.01, range_min=0.0, range_max=scan.range_max)
+        e = est.update(scan)
+        assert e.ok and np.all(np.isfinite(e.pose)) and np.all(np.isfinite(e.covariance))
+        limit = EgoMotionConfig().max_points
+        assert e.n_points == beams if beams <= limit else limit / 2 < e.n_points <= limit
+        if k == 0:
+            assert e.source == SOURCE_INIT
+        elif beams < EgoMotionConfig().min_points:
+            assert e.source == SOURCE_ODOMETRY and 'too few valid points' in e.reason
+            np.testing.assert_allclose(e.motion, between(path[k - 1], p), atol=1e-12)
+        else:
+            assert e.source == SOURCE_ICP, e.reason
+            assert motion_error(e.motion, between(path[k - 1], p))[0] < 0.005
+
+
+def test_scans_with_every_beam_invalid_coast_and_the_chain_goes_on():
+    est, path, scan = _stream()
+    for k in range(6):
+        est.add_odometry(0.2 * k, path[k])
+    out = []
+    for k in range(6):
+        s = scan(k)
+        s.ranges[:] = [np.nan, np.inf, -1.0, 0.0][k % 4] if k > 0 else s.ranges
+        out.append(est.update(s))
+    assert [e.source for e in out] == [SOURCE_INIT] + [SOURCE_ODOMETRY] * 5
+    for e, k in zip(out[1:], range(1, 6)):
+        assert e.n_points == 0 and e.coasting and 'too few valid points (0' in e.reason
+        np.testing.assert_allclose(e.pose, path[k], atol=1e-9)
 
 
 def test_too_few_points_uses_odometry():
@@ -520,7 +592,7 @@ def good_odometry(rng, inc):
 
 def test_adaptive_prior_learns_how_poor_the_odometry_is():
     est, out, truth = _room_run(poor_odometry)
-    vxy, vth = est.odometry_noise.variance((0.05, 0.0, 0.02))
+    vxy, vth = est.prior.odometry_noise.variance((0.05, 0.0, 0.02))
     assert 0.025 < math.sqrt(vxy) < 0.08 and 1 * DEG < math.sqrt(vth) < 3.5 * DEG
     # the over-confident fixed default (1 cm, 0.5 deg per step) pulls ICP towards the poor
     # odometry; the adapted prior does not
@@ -536,7 +608,7 @@ def test_adaptive_prior_learns_how_poor_the_odometry_is():
 
 def test_adaptive_prior_comes_to_trust_good_odometry():
     est, out, truth = _room_run(good_odometry)
-    vxy, vth = est.odometry_noise.variance((0.05, 0.0, 0.02))
+    vxy, vth = est.prior.odometry_noise.variance((0.05, 0.0, 0.02))
     fixed_sxy = 0.01 + 0.05 * 0.05                       # the starting (fixed) model
     assert math.sqrt(vxy) < 0.5 * fixed_sxy
     # the fused motion is as good as the odometry, better than ICP alone (model sigma 1 cm)
@@ -565,8 +637,8 @@ def test_fixed_prior_keeps_the_configured_model():
     est, out, truth = _room_run(poor_odometry, cfg, n=40)
     s = cast(ROOM, (0.0, 0.0, 0.0), stamp=100.0)
     s.ranges[:] = np.inf
-    est.add_odometry(100.0, compose(est._odo, (0.1, 0.0, 0.0)))
-    est.add_odometry(99.9, est._odo)
+    est.add_odometry(100.0, compose(est._odo[0], (0.1, 0.0, 0.0)))
+    est.add_odometry(99.9, est._odo[0])
     e = est.update(s)
     # too few points, no match tried: odometry with its fixed covariance (1 cm + 5 %/m)
     assert e.source == SOURCE_ODOMETRY and not pose_quality(e).failed

@@ -50,7 +50,7 @@ def test_package_xml_lists_exactly_the_runtime_dependencies():
     cfg = configparser.ConfigParser()
     cfg.read(ROOT / 'setup.cfg')
     required = {r.strip() for r in cfg['options']['install_requires'].split('\n') if r.strip()}
-    to_rosdep = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy',
+    to_rosdep = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'numba': 'python3-numba',
                  'pyserial': 'python3-serial', 'pyyaml': 'python3-yaml'}
     assert required == set(to_rosdep)
     assert python == set(to_rosdep.values())

@@ -1,6 +1,7 @@
 """Ego-motion: the scanner's motion between scans from odometry plus ICP scan matching.
 
-Pure numpy/scipy (no ROS). Usage, one estimator per scan stream::
+No ROS; the scan matching is a compiled kernel (:mod:`laser_tracker.core.icp`). Usage, one
+estimator per scan stream::
 
     est = EgoMotionEstimator(EgoMotionConfig())
     est.add_odometry(stamp, (x, y, theta))     # every odometry sample, as it arrives
@@ -10,6 +11,11 @@ Pure numpy/scipy (no ROS). Usage, one estimator per scan stream::
     e.covariance, e.source, e.reason, e.coasting, e.ok
 
 Offline, with the whole odometry as a PoseTrack: :func:`estimate_track`.
+
+Roles: :class:`OdometryBuffer` (the odometry stream), :class:`MotionPrior` (the prediction
+and its adaptive noise), :class:`ScanMatcher` (the scan's points, the local map and ICP),
+:func:`fuse` (ICP and the prediction by information) and :func:`implausible` (the checks of
+the fused motion); :class:`EgoMotionEstimator` holds the pose chain and runs them per scan.
 
 Method (per scan):
 
@@ -287,6 +293,16 @@ class OdometryBuffer:
         self.config = config
         self.clear()
 
+    @property
+    def config(self) -> EgoMotionConfig:
+        return self._config
+
+    @config.setter
+    def config(self, config: EgoMotionConfig) -> None:
+        self._config = config
+        mount = (config.mount_x, config.mount_y, config.mount_yaw)
+        self._mount = np.array(mount, dtype=float) if any(mount) else None
+
     def clear(self) -> None:
         self._t: list[float] = []
         self._p: list[tuple[float, float, float]] = []
@@ -357,6 +373,17 @@ class OdometryBuffer:
         i = bisect.bisect_left(self._t, before) - 1
         if i > 64:
             del self._t[:i], self._p[:i], self._seg[:i]
+
+    def scanner_pose(self, t: float) -> tuple[np.ndarray | None, int, str]:
+        """:meth:`pose_at` for a scan stamped ``t``: read at ``t + odom_latency``, with the
+        scanner's mounting applied; samples older than ``odom_buffer`` are forgotten."""
+        c = self.config
+        odo, seg, reason = self.pose_at(t + c.odom_latency)
+        if odo is not None:
+            self.trim(t + c.odom_latency - c.odom_buffer)
+            if self._mount is not None:
+                odo = compose(odo, self._mount)
+        return odo, seg, reason
 
     def pose_at(self, t: float) -> tuple[np.ndarray | None, int, str]:
         """``(pose, segment, '')`` at time ``t``, or ``(None, -1, reason)``."""
@@ -517,26 +544,59 @@ def _solve_small(a, b):
             (p * (t * b[2] - b[1] * w) - q * (s * b[2] - b[1] * v) + b[0] * (s * w - t * v)) / det]
 
 
-# -------------------------------------------------------------------------- estimator
+# ------------------------------------------------------------------------ prediction
 
 
-class EgoMotionEstimator:
-    """Odometry prior plus point-to-line ICP against a short local map (module docstring)."""
+def too_fast(motion, dt: float, config: EgoMotionConfig) -> str:
+    """Why ``motion`` over ``dt`` seconds is beyond the platform's limits ('' if it is not);
+    scan stamps jitter, so the step may take ``speed_check_jitter`` longer."""
+    if dt <= 0.0:
+        return ''
+    span = dt + config.speed_check_jitter
+    v = math.hypot(motion[0], motion[1]) / span
+    w = abs(motion[2]) / span
+    if v > config.max_translation_speed:
+        return f'{v:.2f} m/s > {config.max_translation_speed:g} m/s'
+    if w > config.max_rotation_speed:
+        return (f'{math.degrees(w):.0f} deg/s > '
+                f'{math.degrees(config.max_rotation_speed):.0f} deg/s')
+    return ''
 
-    def __init__(self, config: EgoMotionConfig | None = None):
-        self.config = config or EgoMotionConfig()
-        c = self.config
-        self.odometry = OdometryBuffer(c)
-        self._mount = np.array([c.mount_x, c.mount_y, c.mount_yaw], dtype=float)
-        self._has_mount = bool(np.any(self._mount != 0.0))
-        hi, lo, n = c.association_distance, c.association_distance_final, c.association_levels
-        if n == 1 or hi <= lo:
-            self._distances = (lo,)
-        else:
-            self._distances = tuple(float(v) for v in np.geomspace(hi, lo, n))
-        self.stats: Counter = Counter()
-        self._notes: Counter = Counter()
-        self._map = icp.LocalMap(c.map_scans)
+
+def odometry_increment(previous, current, dt: float,
+                       config: EgoMotionConfig) -> tuple[np.ndarray | None, str]:
+    """``(increment, '')``: the odometry motion between two scans' ``(pose, segment)``
+    (``current`` also has the reason it may be missing), or ``(None, why not)``."""
+    odo, seg, missing = current
+    if odo is None:
+        return None, missing
+    if previous[0] is None:
+        return None, 'no odometry at the previous scan'
+    if seg != previous[1]:
+        return None, 'odometry jumped since the previous scan'
+    inc = between(previous[0], odo)
+    speed = too_fast(inc, dt, config)
+    if speed:
+        return None, f'odometry step implies {speed} (jump?)'
+    return inc, ''
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """The motion expected since the previous scan (previous scanner frame) and its prior."""
+
+    motion: np.ndarray             # the odometry increment, else the constant-velocity guess
+    information: np.ndarray        # the prior's information, diagonal (x, y, theta)
+    odometry: np.ndarray | None    # the odometry increment (None: not usable)
+    constant_velocity: np.ndarray  # the previous motion scaled to the time step
+
+
+class MotionPrior:
+    """Step 1 and 2 of the method: the prediction and its noise, fixed (``odom_sigma_*``,
+    ``cv_sigma_*``) or adapted to the accepted matches (``adaptive_prior``)."""
+
+    def __init__(self, config: EgoMotionConfig):
+        c = self.config = config
         self.odometry_noise = AdaptiveNoise(
             (c.odom_sigma_xy ** 2, c.odom_sigma_xy_per_m ** 2, 0.0),
             (c.odom_sigma_theta ** 2, c.odom_sigma_theta_per_m ** 2,
@@ -545,265 +605,44 @@ class EgoMotionEstimator:
         self.motion_model_noise = AdaptiveNoise(
             (c.cv_sigma_xy ** 2, 0.0, 0.0), (c.cv_sigma_theta ** 2, 0.0, 0.0),
             c.adaptive_memory, c.adaptive_weight, c.adaptive_clip)
-        self._reset_state()
+        self._odometry_model = ((c.odom_sigma_xy, c.odom_sigma_xy_per_m, 0.0),
+                                (c.odom_sigma_theta, c.odom_sigma_theta_per_m,
+                                 c.odom_sigma_theta_per_rad))
+        self._motion_model = (c.cv_sigma_xy, 0.0, 0.0), (c.cv_sigma_theta, 0.0, 0.0)
+        # no motion seen yet: the guess (standing) is weak
+        self._unknown = np.array([0.01 / c.cv_sigma_xy ** 2, 0.01 / c.cv_sigma_xy ** 2,
+                                  0.01 / c.cv_sigma_theta ** 2])
 
-    # ----------------------------------------------------------------- public API
-
-    def add_odometry(self, stamp: float, pose) -> None:
-        """Feed one odometry sample (platform pose ``x, y, theta`` in the odometry frame)."""
-        note = self.odometry.add(stamp, pose)
-        if note:
-            self._note(*note)
-
-    def reset(self, reason: str = 'reset requested') -> None:
-        """Forget the local map and the pose chain (odometry history and the adapted noise
-        are kept)."""
-        self._note('reset', f'ego-motion reset: {reason}', level=logging.WARNING)
-        self.stats['resets'] += 1
-        self._reset_state()
-
-    def update(self, scan: Scan) -> EgoMotionEstimate:
-        """Estimate the motion for ``scan`` (see the module docstring)."""
-        c = self.config
-        t = float(scan.stamp)
-        if self._stamp is not None:
-            if t < self._stamp:
-                self.reset(f'time went backwards ({self._stamp:.3f} -> {t:.3f} s)')
-            elif t == self._stamp:
-                return self._none(scan, 'scan stamp equals the previous one (skipped)', 0,
-                                  lost=False)
-
-        pts = self._points(scan)
-        n_pts = pts.shape[0]
-        odo, seg, odo_reason = self.odometry.pose_at(t + c.odom_latency)
-        if odo is not None:
-            self.odometry.trim(t + c.odom_latency - c.odom_buffer)
-            if self._has_mount:
-                odo = compose(odo, self._mount)
-
-        if self._pose is None:
-            return self._init(scan, pts, odo, seg, odo_reason)
-
-        dt = t - self._stamp
-        # --- odometry increment and the prediction
-        inc = None
-        if odo is None:
-            inc_reason = odo_reason
-        elif self._odo is None:
-            inc_reason = 'no odometry at the previous scan'
-        elif seg != self._seg:
-            inc_reason = 'odometry jumped since the previous scan'
+    def predict(self, increment, last_motion, last_dt: float, dt: float) -> Prediction:
+        """The odometry ``increment`` when usable, else the ``last_motion`` (over ``last_dt``)
+        scaled to ``dt`` (constant velocity, at most 3 times)."""
+        if last_motion is None or last_dt <= 0.0:
+            cv = np.zeros(3)
         else:
-            inc = between(self._odo, odo)
-            speed = self._too_fast(inc, dt)
-            if speed:
-                inc_reason = f'odometry step implies {speed} (jump?)'
-                inc = None
-            else:
-                inc_reason = ''
-        cv = self._constant_velocity(dt)
-        if inc is not None:
-            guess = inc
-            lam = self._prior_information(self.odometry_noise, inc, self._odo_fixed)
-        else:
-            self._note('no odometry', f'scan at {t:.3f} s: no odometry increment '
-                       f'({inc_reason}): constant-velocity prediction')
-            guess = cv
-            if self._motion is None:  # no motion seen yet: the guess (standing) is weak
-                lam = np.array([0.01 / c.cv_sigma_xy ** 2, 0.01 / c.cv_sigma_xy ** 2,
-                                0.01 / c.cv_sigma_theta ** 2])
-            else:
-                lam = self._prior_information(self.motion_model_noise, cv, self._cv_fixed)
-        pred = compose(self._pose, guess)
+            cv = last_motion * min(dt / last_dt, 3.0)
+        if increment is not None:
+            info = self._information(self.odometry_noise, increment, self._odometry_model)
+            return Prediction(increment, info, increment, cv)
+        if last_motion is None:
+            return Prediction(cv, self._unknown, None, cv)
+        info = self._information(self.motion_model_noise, cv, self._motion_model)
+        return Prediction(cv, info, None, cv)
 
-        # --- ICP
-        res = None
-        icp_pose = None
-        info_icp = None
-        partial = 0
-        map_ok = self._map.n_points >= c.min_points
-        if n_pts < c.min_points:
-            why = f'too few valid points ({n_pts} < {c.min_points})'
-        elif not map_ok:
-            why = f'local map too small ({self._map.n_points} points)'
-        else:
-            res = icp.align(pts, self._map, pred, self._distances, c.kernel_ratio,
-                            c.steps_per_association, c.final_associations,
-                            converged_translation=c.converged_translation,
-                            converged_rotation=c.converged_rotation,
-                            coarse_stride=c.coarse_stride)
-            why = self._check(res)
-            if not why:
-                icp_pose, info_icp, partial, why, lam_used = self._fuse(res, pred, lam)
-            if not why:
-                motion_icp = between(self._pose, icp_pose)
-                speed = self._too_fast(motion_icp, dt)
-                if speed:
-                    why = f'match implies {speed}'
-                elif inc is not None:
-                    corr = between(pred, icp_pose)
-                    dist = math.hypot(corr[0], corr[1])
-                    if (dist > c.max_correction_translation
-                            or abs(corr[2]) > c.max_correction_rotation):
-                        why = (f'match disagrees with odometry by {dist:.2f} m / '
-                               f'{math.degrees(abs(corr[2])):.1f} deg')
-
-        diag = {}
-        if res is not None:
-            diag = dict(inlier_ratio=res.inlier_ratio, rms=res.rms, iterations=res.iterations,
-                        min_eigenvalue=float(res.eigenvalues[0]))
-        coasting = False
-        reseeded = False
-        if icp_pose is not None and not why:
-            motion = between(self._pose, icp_pose)
-            cov = _inverse(info_icp + np.diag(lam_used))
-            if not partial and c.adaptive_prior:
-                self._adapt(res, info_icp, inc, cv)
-            if partial and inc is not None:
-                source = SOURCE_PARTIAL
-                reason = f'{partial} degenerate direction(s): odometry along them'
-            elif partial:
-                source = SOURCE_PARTIAL
-                reason = (f'{partial} degenerate direction(s) and no odometry '
-                          f'({inc_reason}): constant-velocity guess along them')
-            else:
-                source = SOURCE_ICP
-                reason = 'icp' if inc is not None else f'icp without odometry ({inc_reason})'
-            self._lost = 0
-        else:
-            # No match: the platform coasts on its motion model; the pose chain goes on.
-            coasting = True
-            motion, cov = guess, np.diag(1.0 / lam)
-            if inc is not None:
-                source, reason = SOURCE_ODOMETRY, f'ICP refused: {why}'
-                self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): '
-                           f'odometry used')
-            else:
-                source = SOURCE_CONSTANT_VELOCITY
-                reason = f'ICP refused ({why}) and no odometry ({inc_reason}): coasting'
-                self._note('coasting', f'scan at {t:.3f} s: ICP refused ({why}) and no '
-                           f'odometry ({inc_reason}): constant-velocity motion')
-            if res is not None or not map_ok:
-                self._lost += 1  # a match was tried and refused, or there is nothing to match
-            if n_pts >= c.min_points and (not map_ok or self._lost >= c.max_lost_scans):
-                reseeded = True
-                reason += '; local map re-seeded from this scan'
-                self._note('map re-seeded', f'scan at {t:.3f} s: {self._lost} scans without '
-                           f'a match: the local map is re-seeded from this scan (the pose '
-                           f'chain continues)')
-                self.stats['map re-seeded'] += 1
-
-        self._pose = compose(self._pose, motion)
-        self._stamp = t
-        self._odo, self._seg = (odo, seg) if odo is not None else (None, -1)
-        self._motion, self._dt = motion, dt
-        if reseeded:
-            self._map.clear()
-            self._lost = 0
-            self._add_to_map(pts)
-        elif source != SOURCE_CONSTANT_VELOCITY and self._moved_since_key_scan():
-            self._add_to_map(pts)  # placed by ICP or odometry (a guess would pollute the map)
-        self.stats[source] += 1
-        return EgoMotionEstimate(stamp=t, pose=self._pose.copy(), motion=motion,
-                                 covariance=cov, source=source, reason=reason, dt=dt,
-                                 odometry_motion=inc, n_points=n_pts, coasting=coasting,
-                                 **diag)
-
-    # ------------------------------------------------------------------- internals
-
-    def _reset_state(self) -> None:
-        self._map.clear()
-        self._key_pose: np.ndarray | None = None
-        self._pose: np.ndarray | None = None
-        self._stamp: float | None = None
-        self._odo: np.ndarray | None = None
-        self._seg = -1
-        self._motion: np.ndarray | None = None
-        self._dt = 0.0
-        self._lost = 0
-
-    def _note(self, kind: str, message: str, level: int = logging.WARNING) -> None:
-        """Log ``message``: first time, then at the 10th, 100th, ... time for its kind."""
-        self._notes[kind] += 1
-        self.stats[f'note: {kind}'] += 1
-        n = self._notes[kind]
-        if n == 1 or (n >= 10 and math.log10(n).is_integer()):
-            log.log(level, '%s%s', message, f' ({n} times so far)' if n > 1 else '')
-        else:
-            log.debug('%s', message)
-
-    def _points(self, scan: Scan) -> np.ndarray:
-        c = self.config
-        r = scan.ranges
-        mask = scan.valid()
-        with np.errstate(invalid='ignore'):
-            mask &= (r >= c.min_range) & (r <= c.max_range)
-        idx = np.flatnonzero(mask)
-        if idx.size > c.max_points:
-            idx = idx[::-(-idx.size // c.max_points)]
-        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
-                                 scan.n_beams)
-        rr = r[idx]
-        return np.column_stack((rr * cos[idx], rr * sin[idx]))
-
-    def _moved_since_key_scan(self) -> bool:
-        key = self._key_pose
-        if key is None:
-            return True
-        d = between(key, self._pose)
-        return (math.hypot(d[0], d[1]) >= self.config.map_min_translation
-                or abs(d[2]) >= self.config.map_min_rotation)
-
-    def _add_to_map(self, pts: np.ndarray) -> None:
-        if pts.shape[0] < 2:
+    def learn(self, prediction: Prediction, icp_motion, icp_information,
+              has_history: bool) -> None:
+        """Feed the disagreement of the prediction with an accepted, fully constrained ICP
+        motion (before fusion); the motion model is learnt only once a motion was seen."""
+        var = _inverse_diagonal(icp_information)
+        if var is None:
             return
-        nrm, ok = icp.scan_normals(pts, self.config.normal_max_gap)
-        self._map.add(self._pose, pts[ok], nrm[ok])
-        self._map.build()
-        self._key_pose = self._pose.copy()
+        inc = prediction.odometry
+        if inc is not None:
+            self.odometry_noise.update(inc, between(inc, icp_motion), var)
+        elif has_history:
+            cv = prediction.constant_velocity
+            self.motion_model_noise.update(cv, between(cv, icp_motion), var)
 
-    def _init(self, scan, pts, odo, seg, odo_reason) -> EgoMotionEstimate:
-        self._map.clear()
-        self._key_pose = None
-        if odo is not None:
-            self._pose, reason = odo.copy(), 'first scan: pose from odometry'
-        else:
-            self._pose, reason = np.zeros(3), f'first scan: pose at the origin ({odo_reason})'
-        self._stamp = float(scan.stamp)
-        self._odo, self._seg = (odo, seg) if odo is not None else (None, -1)
-        self._motion, self._dt, self._lost = None, 0.0, 0
-        self._add_to_map(pts)
-        self.stats[SOURCE_INIT] += 1
-        return EgoMotionEstimate(stamp=self._stamp, pose=self._pose.copy(), motion=np.zeros(3),
-                                 covariance=np.zeros((3, 3)), source=SOURCE_INIT,
-                                 reason=reason, n_points=pts.shape[0])
-
-    def _none(self, scan, reason, n_pts, lost=True, **diag) -> EgoMotionEstimate:
-        self._note('no pose', f'scan at {scan.stamp:.3f} s has no pose: {reason}')
-        self.stats[SOURCE_NONE] += 1
-        nan3 = np.full(3, np.nan)
-        return EgoMotionEstimate(stamp=float(scan.stamp), pose=nan3, motion=nan3.copy(),
-                                 covariance=np.full((3, 3), np.nan), source=SOURCE_NONE,
-                                 reason=reason, n_points=n_pts, **diag)
-
-    def _constant_velocity(self, dt: float) -> np.ndarray:
-        if self._motion is None or self._dt <= 0.0:
-            return np.zeros(3)
-        f = min(dt / self._dt, 3.0)
-        return self._motion * f
-
-    @property
-    def _odo_fixed(self):
-        c = self.config
-        return ((c.odom_sigma_xy, c.odom_sigma_xy_per_m, 0.0),
-                (c.odom_sigma_theta, c.odom_sigma_theta_per_m, c.odom_sigma_theta_per_rad))
-
-    @property
-    def _cv_fixed(self):
-        c = self.config
-        return (c.cv_sigma_xy, 0.0, 0.0), (c.cv_sigma_theta, 0.0, 0.0)
-
-    def _prior_information(self, noise: AdaptiveNoise, motion, fixed) -> np.ndarray:
+    def _information(self, noise: AdaptiveNoise, motion, fixed) -> np.ndarray:
         """Information (diagonal, x y theta) of a prediction ``motion``: the adapted noise,
         or the fixed model (sigma = per step + per metre * d + per radian * |a|)."""
         if self.config.adaptive_prior:
@@ -814,31 +653,53 @@ class EgoMotionEstimator:
         sth = ta + tb * d + tc * abs(motion[2])
         return np.array([1.0 / sxy ** 2, 1.0 / sxy ** 2, 1.0 / sth ** 2])
 
-    def _adapt(self, res: icp.IcpResult, info_icp, inc, cv) -> None:
-        """Feed the disagreement of the predictions with the ICP motion (before fusion)."""
-        m = between(self._pose, res.pose)
-        var = _inverse_diagonal(info_icp)
-        if var is None:
-            return
-        if inc is not None:
-            self.odometry_noise.update(inc, between(inc, m), var)
-        elif self._motion is not None:  # the motion model is learnt while it is used
-            self.motion_model_noise.update(cv, between(cv, m), var)
 
-    def _too_fast(self, motion, dt) -> str:
+# ----------------------------------------------------------------------------- match
+
+
+class ScanMatcher:
+    """Step 3: the scan's points matched against the local map of the last key scans
+    (one compiled kernel per scan, :mod:`laser_tracker.core.icp`)."""
+
+    def __init__(self, config: EgoMotionConfig):
+        c = self.config = config
+        hi, lo, n = c.association_distance, c.association_distance_final, c.association_levels
+        distances = (lo,) if n == 1 or hi <= lo else \
+            tuple(float(v) for v in np.geomspace(hi, lo, n))
+        self.schedule = icp.Schedule.of(
+            distances, c.kernel_ratio, c.steps_per_association, c.final_associations,
+            converged_translation=c.converged_translation,
+            converged_rotation=c.converged_rotation, coarse_stride=c.coarse_stride)
+        self.map = icp.LocalMap(c.map_scans, c.normal_max_gap)
+        self.key_pose: np.ndarray | None = None
+        icp.warm_up()
+
+    def clear(self) -> None:
+        self.map.clear()
+        self.key_pose = None
+
+    def match(self, scan: Scan, pose0=None) -> tuple[np.ndarray, icp.IcpResult | None]:
+        """The scan's valid points (``Scan.valid()`` within ``min_range``/``max_range``, at
+        most ``max_points``) and their ICP result from ``pose0`` (None: not matched, or
+        too few points or map points)."""
         c = self.config
-        if dt <= 0.0:
-            return ''
-        span = dt + c.speed_check_jitter
-        v = math.hypot(motion[0], motion[1]) / span
-        w = abs(motion[2]) / span
-        if v > c.max_translation_speed:
-            return f'{v:.2f} m/s > {c.max_translation_speed:g} m/s'
-        if w > c.max_rotation_speed:
-            return f'{math.degrees(w):.0f} deg/s > {math.degrees(c.max_rotation_speed):.0f} deg/s'
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
+                                 scan.n_beams)
+        return icp.match_scan(scan.ranges, cos, sin, max(scan.range_min, 1e-6),
+                              scan.range_max, c.min_range, c.max_range, c.max_points,
+                              c.min_points, self.map, pose0, self.schedule)
+
+    def unmatchable(self, n_points: int) -> str:
+        """Why a scan of ``n_points`` points is not matched ('' if it is)."""
+        c = self.config
+        if n_points < c.min_points:
+            return f'too few valid points ({n_points} < {c.min_points})'
+        if self.map.n_points < c.min_points:
+            return f'local map too small ({self.map.n_points} points)'
         return ''
 
-    def _check(self, res: icp.IcpResult) -> str:
+    def refusal(self, res: icp.IcpResult) -> str:
+        """Why the match ``res`` is refused ('' if it is not): overlap, residual, ..."""
         c = self.config
         if res.n_inliers < c.min_points:
             return f'only {res.n_inliers} points matched'
@@ -852,45 +713,90 @@ class EgoMotionEstimator:
             return 'non-finite result'
         return ''
 
-    def _fuse(self, res: icp.IcpResult, pred, lam):
-        """ICP pose fused with the prediction: (pose, icp information, n_deg, why, prior
-        information used).
+    def moved_since_key_scan(self, pose) -> bool:
+        key = self.key_pose
+        if key is None:
+            return True
+        d = between(key, pose)
+        return (math.hypot(d[0], d[1]) >= self.config.map_min_translation
+                or abs(d[2]) >= self.config.map_min_rotation)
 
-        ``lam`` is the prediction's information, diagonal (odometry, or the constant-velocity
-        model); along degenerate directions the prediction is kept.
-        """
-        c = self.config
-        sv = np.array([1.0, 1.0, 1.0 / res.scale])
-        evals = res.eigenvalues
-        deg = evals < c.degeneracy_threshold
-        n_deg = int(np.count_nonzero(deg))
-        if n_deg == 3:
-            return None, None, 0, 'degenerate in every direction', lam
-        # information of the ICP pose: H / (sum w * model_sigma^2), scanner-frame perturbation
-        info = res.hessian / (max(res.sum_weights, 1e-12) * c.icp_model_sigma ** 2)
-        pose = res.pose
-        d = between(pose, pred)
-        if not n_deg:
-            if c.prior_max_ratio > 0.0:
-                lam = np.minimum(lam, c.prior_max_ratio * info.diagonal())
-            if c.prior_gate > 0.0:
-                # a converged, well-overlapping match far outside the prediction's noise: the
-                # prediction is what failed (a wheel slip): it stops counting
-                m2 = _mahalanobis2(info, lam, d)
-                if m2 > c.prior_gate ** 2:
-                    lam = lam * (c.prior_gate ** 2 / m2) ** 2
-        pose = compose(pose, np.linalg.solve(info + np.diag(lam), lam * d))
-        if n_deg:
-            # along degenerate directions (scaled coordinates z = delta / sv): the prediction
-            z = between(pred, pose) / sv
-            u = res.eigenvectors[:, ~deg]
-            pose = compose(pred, sv * (u @ (u.T @ z)))
-            # no ICP information along them
-            v = res.eigenvectors[:, deg]
-            proj = np.eye(3) - v @ v.T
-            s_inv = np.diag(1.0 / sv)
-            info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
-        return pose, info, n_deg, '', lam
+    def add_key_scan(self, pose, pts: np.ndarray) -> None:
+        """The scan at ``pose`` joins the local map (a scan of fewer than 2 points does not)."""
+        if pts.shape[0] < 2:
+            return
+        self.map.add_scan(pose, pts)
+        self.key_pose = pose.copy()
+
+
+# ---------------------------------------------------------------------------- fusion
+
+
+@dataclass(frozen=True)
+class Fused:
+    """Step 4: the ICP pose fused with the prediction."""
+
+    pose: np.ndarray                # scanner pose in the odometry frame
+    motion: np.ndarray              # since the previous scan (previous scanner frame)
+    information: np.ndarray         # ICP's information (none along degenerate directions)
+    prior: np.ndarray               # the prediction's information used (bounded, gated)
+    degenerate: int                 # directions that took the prediction
+
+
+def fuse(res: icp.IcpResult, previous, predicted, prior,
+         config: EgoMotionConfig) -> Fused | str:
+    """The ICP pose fused with the ``predicted`` pose of ``prior`` information (diagonal:
+    odometry or constant velocity), or why it cannot be; the motion is from the
+    ``previous`` pose. Along degenerate directions the prediction is kept."""
+    c = config
+    sv = np.array([1.0, 1.0, 1.0 / res.scale])
+    evals = res.eigenvalues
+    deg = evals < c.degeneracy_threshold
+    n_deg = int(np.count_nonzero(deg))
+    if n_deg == 3:
+        return 'degenerate in every direction'
+    # information of the ICP pose: H / (sum w * model_sigma^2), scanner-frame perturbation
+    info = res.hessian / (max(res.sum_weights, 1e-12) * c.icp_model_sigma ** 2)
+    pose = res.pose
+    d = between(pose, predicted)
+    lam = prior
+    if not n_deg:
+        if c.prior_max_ratio > 0.0:
+            lam = np.minimum(lam, c.prior_max_ratio * info.diagonal())
+        if c.prior_gate > 0.0:
+            # a converged, well-overlapping match far outside the prediction's noise: the
+            # prediction is what failed (a wheel slip): it stops counting
+            m2 = _mahalanobis2(info, lam, d)
+            if m2 > c.prior_gate ** 2:
+                lam = lam * (c.prior_gate ** 2 / m2) ** 2
+    pose = compose(pose, np.linalg.solve(info + np.diag(lam), lam * d))
+    if n_deg:
+        # along degenerate directions (scaled coordinates z = delta / sv): the prediction
+        z = between(predicted, pose) / sv
+        u = res.eigenvectors[:, ~deg]
+        pose = compose(predicted, sv * (u @ (u.T @ z)))
+        # no ICP information along them
+        v = res.eigenvectors[:, deg]
+        proj = np.eye(3) - v @ v.T
+        s_inv = np.diag(1.0 / sv)
+        info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
+    return Fused(pose, between(previous, pose), info, lam, n_deg)
+
+
+def implausible(motion, predicted, pose, odometry, dt: float, config: EgoMotionConfig) -> str:
+    """Step 5, the fused match's checks: the platform's speed limits and, with odometry, the
+    correction of the ``predicted`` pose ('' when it passes)."""
+    c = config
+    speed = too_fast(motion, dt, c)
+    if speed:
+        return f'match implies {speed}'
+    if odometry is not None:
+        corr = between(predicted, pose)
+        dist = math.hypot(corr[0], corr[1])
+        if dist > c.max_correction_translation or abs(corr[2]) > c.max_correction_rotation:
+            return (f'match disagrees with odometry by {dist:.2f} m / '
+                    f'{math.degrees(abs(corr[2])):.1f} deg')
+    return ''
 
 
 def _inverse_diagonal(m):
@@ -926,6 +832,201 @@ def _inverse(info) -> np.ndarray:
     except np.linalg.LinAlgError:
         cov = np.linalg.pinv(info)
     return 0.5 * (cov + cov.T)
+
+
+# -------------------------------------------------------------------------- estimator
+
+
+class EgoMotionEstimator:
+    """Odometry prior plus point-to-line ICP against a short local map (module docstring).
+
+    Its roles: the odometry buffer (``odometry``), the prediction and its adaptive prior
+    (``prior``), the match (``matcher``) and the fusion (:func:`fuse`); the estimator holds
+    the pose chain.
+    """
+
+    def __init__(self, config: EgoMotionConfig | None = None):
+        self.config = config or EgoMotionConfig()
+        self.odometry = OdometryBuffer(self.config)
+        self.prior = MotionPrior(self.config)
+        self.matcher = ScanMatcher(self.config)
+        self.stats: Counter = Counter()
+        self._notes: Counter = Counter()
+        self._reset_state()
+
+    # ----------------------------------------------------------------- public API
+
+    def add_odometry(self, stamp: float, pose) -> None:
+        """Feed one odometry sample (platform pose ``x, y, theta`` in the odometry frame)."""
+        note = self.odometry.add(stamp, pose)
+        if note:
+            self._note(*note)
+
+    def reset(self, reason: str = 'reset requested') -> None:
+        """Forget the local map and the pose chain (odometry history and the adapted noise
+        are kept)."""
+        self._note('reset', f'ego-motion reset: {reason}', level=logging.WARNING)
+        self.stats['resets'] += 1
+        self._reset_state()
+
+    def update(self, scan: Scan) -> EgoMotionEstimate:
+        """Estimate the motion for ``scan`` (the steps of the module docstring)."""
+        t = float(scan.stamp)
+        if self._stamp is not None and t == self._stamp:
+            return self._none(t, 'scan stamp equals the previous one (skipped)')
+        if self._stamp is not None and t < self._stamp:
+            self.reset(f'time went backwards ({self._stamp:.3f} -> {t:.3f} s)')
+        odo = self.odometry.scanner_pose(t)
+        if self._pose is None:
+            return self._init(t, self.matcher.match(scan)[0], odo)
+        dt = t - self._stamp
+        # 1-2. the prediction: the odometry increment or constant velocity, and its prior
+        inc, no_inc = odometry_increment(self._odo, odo, dt, self.config)
+        if inc is None:
+            self._note('no odometry', f'scan at {t:.3f} s: no odometry increment '
+                       f'({no_inc}): constant-velocity prediction')
+        pred = self.prior.predict(inc, self._motion, self._dt, dt)
+        predicted = compose(self._pose, pred.motion)
+        # 3. the match, from the predicted pose
+        pts, res = self.matcher.match(scan, predicted)
+        # 4-5. the match fused with the prediction, when both pass the checks
+        fused, why = self._fuse(res, pts.shape[0], pred, predicted, dt)
+        if fused is not None:
+            out, reseed = self._accepted(t, res, pred, fused, no_inc, pts.shape[0]), False
+        else:
+            out, reseed = self._coasting(t, res, pred, why, no_inc, pts.shape[0])
+        self._advance(t, out, odo, dt, pts, reseed)
+        return out
+
+    # ------------------------------------------------------------------- internals
+
+    def _fuse(self, res, n_pts, pred, predicted, dt) -> tuple[Fused | None, str]:
+        """``(fused, '')``, or ``(None, why the match is not used)``."""
+        if res is None:
+            return None, self.matcher.unmatchable(n_pts)
+        why = self.matcher.refusal(res)
+        if why:
+            return None, why
+        fused = fuse(res, self._pose, predicted, pred.information, self.config)
+        if isinstance(fused, str):
+            return None, fused
+        why = implausible(fused.motion, predicted, fused.pose, pred.odometry, dt, self.config)
+        return (None, why) if why else (fused, '')
+
+    def _accepted(self, t, res, pred, fused, no_inc, n_pts) -> EgoMotionEstimate:
+        """An accepted match: the fused motion; the prior learns from a full match."""
+        if not fused.degenerate and self.config.adaptive_prior:
+            self.prior.learn(pred, between(self._pose, res.pose), fused.information,
+                             self._motion is not None)
+        n_deg = fused.degenerate
+        if n_deg and pred.odometry is not None:
+            source, reason = SOURCE_PARTIAL, f'{n_deg} degenerate direction(s): odometry along them'
+        elif n_deg:
+            source = SOURCE_PARTIAL
+            reason = (f'{n_deg} degenerate direction(s) and no odometry ({no_inc}): '
+                      f'constant-velocity guess along them')
+        else:
+            source = SOURCE_ICP
+            reason = 'icp' if pred.odometry is not None else f'icp without odometry ({no_inc})'
+        self._lost = 0
+        return self._estimate(t, fused.motion,
+                              _inverse(fused.information + np.diag(fused.prior)), source,
+                              reason, pred, res, n_pts)
+
+    def _coasting(self, t, res, pred, why, no_inc, n_pts) -> tuple[EgoMotionEstimate, bool]:
+        """No match: the platform coasts on its prediction; the pose chain goes on. After
+        ``max_lost_scans`` such scans (or with no map to match against) the map is re-seeded
+        from the scan (the second value)."""
+        c = self.config
+        if pred.odometry is not None:
+            source, reason = SOURCE_ODOMETRY, f'ICP refused: {why}'
+            self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): odometry used')
+        else:
+            source = SOURCE_CONSTANT_VELOCITY
+            reason = f'ICP refused ({why}) and no odometry ({no_inc}): coasting'
+            self._note('coasting', f'scan at {t:.3f} s: ICP refused ({why}) and no odometry '
+                       f'({no_inc}): constant-velocity motion')
+        map_ok = self.matcher.map.n_points >= c.min_points
+        if res is not None or not map_ok:
+            self._lost += 1  # a match was tried and refused, or there is nothing to match
+        reseed = n_pts >= c.min_points and (not map_ok or self._lost >= c.max_lost_scans)
+        if reseed:
+            reason += '; local map re-seeded from this scan'
+            self._note('map re-seeded', f'scan at {t:.3f} s: {self._lost} scans without a '
+                       f'match: the local map is re-seeded from this scan (the pose chain '
+                       f'continues)')
+            self.stats['map re-seeded'] += 1
+        return self._estimate(t, pred.motion, np.diag(1.0 / pred.information), source, reason,
+                              pred, res, n_pts, coasting=True), reseed
+
+    def _estimate(self, t, motion, cov, source, reason, pred, res, n_pts,
+                  coasting=False) -> EgoMotionEstimate:
+        diag = {}
+        if res is not None:
+            diag = dict(inlier_ratio=res.inlier_ratio, rms=res.rms, iterations=res.iterations,
+                        min_eigenvalue=float(res.eigenvalues[0]))
+        return EgoMotionEstimate(stamp=t, pose=compose(self._pose, motion), motion=motion,
+                                 covariance=cov, source=source, reason=reason,
+                                 dt=t - self._stamp, odometry_motion=pred.odometry,
+                                 n_points=n_pts, coasting=coasting, **diag)
+
+    def _advance(self, t, est: EgoMotionEstimate, odo, dt, pts, reseed: bool) -> None:
+        """The pose chain moves on to the scan; the scan joins the local map when it was
+        placed by ICP or odometry (a guess would pollute the map) and has moved since the
+        last key scan, or re-seeds it."""
+        self._pose = est.pose.copy()
+        self._stamp = t
+        self._odo = odo[:2] if odo[0] is not None else (None, -1)
+        self._motion, self._dt = est.motion, dt
+        if reseed:
+            self.matcher.clear()
+            self._lost = 0
+            self.matcher.add_key_scan(self._pose, pts)
+        elif est.source != SOURCE_CONSTANT_VELOCITY and \
+                self.matcher.moved_since_key_scan(self._pose):
+            self.matcher.add_key_scan(self._pose, pts)
+        self.stats[est.source] += 1
+
+    def _reset_state(self) -> None:
+        self.matcher.clear()
+        self._pose: np.ndarray | None = None
+        self._stamp: float | None = None
+        self._odo = (None, -1)              # odometry pose and segment of the previous scan
+        self._motion: np.ndarray | None = None
+        self._dt = 0.0
+        self._lost = 0
+
+    def _note(self, kind: str, message: str, level: int = logging.WARNING) -> None:
+        """Log ``message``: first time, then at the 10th, 100th, ... time for its kind."""
+        self._notes[kind] += 1
+        self.stats[f'note: {kind}'] += 1
+        n = self._notes[kind]
+        if n == 1 or (n >= 10 and math.log10(n).is_integer()):
+            log.log(level, '%s%s', message, f' ({n} times so far)' if n > 1 else '')
+        else:
+            log.debug('%s', message)
+
+    def _init(self, t: float, pts: np.ndarray, odo) -> EgoMotionEstimate:
+        self._reset_state()
+        if odo[0] is not None:
+            self._pose, reason = odo[0].copy(), 'first scan: pose from odometry'
+            self._odo = odo[:2]
+        else:
+            self._pose, reason = np.zeros(3), f'first scan: pose at the origin ({odo[2]})'
+        self._stamp = t
+        self.matcher.add_key_scan(self._pose, pts)
+        self.stats[SOURCE_INIT] += 1
+        return EgoMotionEstimate(stamp=t, pose=self._pose.copy(), motion=np.zeros(3),
+                                 covariance=np.zeros((3, 3)), source=SOURCE_INIT,
+                                 reason=reason, n_points=pts.shape[0])
+
+    def _none(self, t: float, reason: str) -> EgoMotionEstimate:
+        self._note('no pose', f'scan at {t:.3f} s has no pose: {reason}')
+        self.stats[SOURCE_NONE] += 1
+        nan3 = np.full(3, np.nan)
+        return EgoMotionEstimate(stamp=t, pose=nan3, motion=nan3.copy(),
+                                 covariance=np.full((3, 3), np.nan), source=SOURCE_NONE,
+                                 reason=reason)
 
 
 # ---------------------------------------------------------------------------- offline

@@ -284,16 +284,14 @@ def oracle_floor(path: Path, n_map: int, start_sigma=(0.005, 0.005, math.radians
 
     scans, poses, reference, _ = load_corrected(path)
     config = EgoMotionConfig()
-    est = EgoMotionEstimator(config)
-    pts = [est._points(s) for s in scans]
-    normals = [icp.scan_normals(p, config.normal_max_gap) for p in pts]
+    matcher = EgoMotionEstimator(config).matcher
+    pts = [matcher.match(s)[0] for s in scans]
     rng = np.random.default_rng(seed)
     motions = []
     for k in range(1, len(scans)):
-        local = icp.LocalMap(n_map)
+        local = icp.LocalMap(n_map, config.normal_max_gap)
         for j in range(max(0, k - n_map), k):
-            nrm, ok = normals[j]
-            local.add(poses[j], pts[j][ok], nrm[ok])
+            local.add_scan(poses[j], pts[j])
         start = compose(poses[k], rng.normal(0.0, 1.0, 3) * np.array(start_sigma))
         res = icp.align(pts[k], local, start, (0.1,), config.kernel_ratio,
                         steps_per_association=3, final_associations=10)

@@ -1,13 +1,20 @@
 """``laser-tracker bench pipeline``: speed and memory of the whole pipeline.
 
-Scans and odometry of bundled recordings (361-beam SICK scans) are loaded into memory first;
-then the pipeline (ego-motion included) runs over them, the recording repeated with
-continuing stamps until ``--scans`` scans have been processed, single-threaded. Printed:
-scans per second, milliseconds per stage (ego-motion, grid, difference, blobs, tracking),
-and peak traced memory (tracemalloc) for a short run and a long one (``--long-scans``,
-default a simulated hour at 5 Hz = 18,000 scans) with checkpoints, to show it stays flat.
-Without bundled recordings the scans come from the simulator (``laser_tracker.tools.sim``), else
-from a synthetic room with a walker.
+Scans and odometry of bundled recordings (361-beam SICK scans and the 768-beam Hokuyo
+recording) are loaded into memory first; then the pipeline (ego-motion included) runs over
+them, the recording repeated with continuing stamps until ``--scans`` scans have been
+processed, single-threaded. Printed: scans per second, the same at reference speed,
+milliseconds per stage (ego-motion, grid, difference, blobs, tracking), and peak traced
+memory (tracemalloc) for a short run and a long one (``--long-scans``, default a simulated
+hour at 5 Hz = 18,000 scans) with checkpoints, to show it stays flat. Without bundled
+recordings the scans come from the simulator (``laser_tracker.tools.sim``), else from a
+synthetic room with a walker.
+
+Reference speed makes figures of different machines comparable: ``t`` is the best of 3
+timings of 1,000 rounds of ``cKDTree(a).query(b); np.linalg.svd(a.T @ b)`` on two 361 x 2
+random arrays, per round; a machine with ``t`` = :data:`REFERENCE_ROUND` (0.174 ms) is the
+reference, and a figure of ``n`` scans per second measured here is ``n * t / 0.174 ms`` there.
+The compiled kernels are loaded (or compiled) before anything is timed.
 """
 from __future__ import annotations
 
@@ -24,7 +31,9 @@ from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import Scan
 
 DEFAULT_BAGS = ('exp1_stationary_single_walker', 'exp2_translating_static',
-                'exp3_rotating_static', 'crossing_walkers')
+                'exp3_rotating_static', 'crossing_walkers', 'hokuyo_corridor_lobby')
+#: Seconds per round of :func:`reference_round` on the reference machine.
+REFERENCE_ROUND = 0.174e-3
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -219,6 +228,23 @@ def memory_run(events: Events, config: PipelineConfig, n_scans: int,
     return out
 
 
+def reference_round(rounds: int = 1000, repeat: int = 3) -> float:
+    """Seconds per round of ``cKDTree(a).query(b); np.linalg.svd(a.T @ b)`` on two 361 x 2
+    random arrays (best of ``repeat`` timings of ``rounds`` rounds)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(0)
+    a, b = rng.random((361, 2)), rng.random((361, 2))
+    best = float('inf')
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(rounds):
+            cKDTree(a).query(b)
+            np.linalg.svd(a.T @ b)
+        best = min(best, (time.perf_counter() - t0) / rounds)
+    return best
+
+
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.ERROR)
     logging.getLogger('laser_tracker').setLevel(logging.ERROR)   # the figures, not the logs
@@ -227,7 +253,12 @@ def run(args: argparse.Namespace) -> int:
     print(f'pipeline benchmark: {", ".join(r.name for r in recordings)}; one core, '
           f'grid {config.grid.cells} x {config.grid.cells} cells of '
           f'{config.grid.resolution * 100:.0f} cm, Kalman mode {config.kalman.mode}')
-    header = f'{"recording":<34} {"beams":>5} {"scans/s":>8} ' + \
+    Pipeline(config)                      # compiled kernels: loaded (or compiled) now
+    t = reference_round()
+    scale = t / REFERENCE_ROUND
+    print(f'reference round here t = {1e3 * t:.3f} ms (reference machine '
+          f'{1e3 * REFERENCE_ROUND:.3f} ms): at reference speed = scans/s x {scale:.3f}')
+    header = f'{"recording":<34} {"beams":>5} {"scans/s":>8} {"at ref":>7} ' + \
         ' '.join(f'{s:>10}' for s in STAGES) + f' {"total ms":>9}'
     print('\nspeed (ms per scan by stage; ego-motion source counts below)')
     print(header)
@@ -236,10 +267,11 @@ def run(args: argparse.Namespace) -> int:
         r = timed_run(rec, config, args.scans)
         per = r['scans'] / r['wall']
         stages = ' '.join(f'{r["stages"][s]:>10.3f}' for s in STAGES)
-        print(f'{rec.name[:34]:<34} {beams:>5} {per:>8.0f} {stages} '
+        print(f'{rec.name[:34]:<34} {beams:>5} {per:>8.0f} {per * scale:>7.0f} {stages} '
               f'{1e3 * r["wall"] / r["scans"]:>9.3f}')
-        print(f'{"":<34} {"":>5} {"":>8} ego-motion sources {r["sources"]}, cpu/wall '
-              f'{r["cpu"] / r["wall"]:.2f}, hypotheses created {r["created"]}')
+        print(f'{"":<34} {"":>5} {"":>8} {"":>7} ego-motion stage '
+              f'{1e3 * r["stages"]["ego_motion"]:.0f} us per scan; sources {r["sources"]}, '
+              f'cpu/wall {r["cpu"] / r["wall"]:.2f}, hypotheses created {r["created"]}')
     rec = recordings[0]   # the first (stationary) recording cycles cleanly
     print(f'\nmemory (tracemalloc, pipeline state only) on {rec.name}, stamps continuing '
           f'over repeats')
