@@ -88,7 +88,7 @@ class GridConfig:
         'open space it frees no_return_free as before. false = up to no_return_free '
         '(paper).')
     lost_echoes: float = param(
-        0.05, 'The chord between two returns bounds the beams without a return between them '
+        0.03, 'The chord between two returns bounds the beams without a return between them '
         '(no_return_bounds) once at least this share of the scanner\'s '
         'beams (over its last 200 scans) return nothing between two returns nearer than half '
         'its range: the scanner loses echoes on surfaces within range (dark, specular, '

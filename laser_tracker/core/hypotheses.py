@@ -89,6 +89,15 @@ class HypothesisConfig:
                          max=100.0)
     gate: float = param(0.7, 'Radius (m) around a prediction in which a blob supports the '
                         'hypothesis (the search box of Fig. 6).', min=0.01, max=10.0)
+    coast_grace: float = param(
+        0.0, 'A hypothesis without support loses no weight for this long (s) after its last '
+        'support: a new one (weight 20) survives a missed scan or two of a fast scanner, '
+        'where the paper\'s coasting costs more than its weight at once. 0 = paper.',
+        min=0.0, max=5.0)
+    new_when_ungated: bool = param(
+        False, 'A blob that no hypothesis gates (none predicted within gate) is new, whatever '
+        'the hypotheses farther away: Eq. 2 lowers its weight for every hypothesis within 5 m '
+        'and refuses a new mover in a crowd. false = Eq. 2 alone (paper).')
     coast_rate: float = param(200.0, 'Weight lost per second without a supporting blob '
                               '(40 per frame at the paper\'s 5 Hz; per second so that a '
                               'faster scanner coasts as long).', min=0.0, max=10000.0)
@@ -488,6 +497,8 @@ class HypothesisTracker:
                                           c.distance_unit, 0.0).sum(axis=0)
             b_weight = np.clip(b_weight, 0.0, 100.0)
             new_blob = b_weight > c.new_blob_threshold
+            if c.new_when_ungated and k:
+                new_blob |= ~(dist <= c.gate).any(axis=0)
         else:
             b_weight, new_blob = np.zeros(0), np.zeros(0, bool)
 
@@ -518,7 +529,7 @@ class HypothesisTracker:
                                                    segments[segment[held]], t))
             if (~held).any():
                 moving_on = rest[~held]
-                parts.append(self._coast(hyp.take(moving_on), pred[moving_on], dt_frame))
+                parts.append(self._coast(hyp.take(moving_on), pred[moving_on], t, dt_frame))
 
         created = 0
         if new_blob.any():
@@ -735,12 +746,15 @@ class HypothesisTracker:
             self.stats['created'] += n_extra
         return out
 
-    def _coast(self, hyp: HypothesisArrays, pred, dt: float) -> HypothesisArrays:
-        """No supporting blob: continue along the velocity with a reduced weight."""
+    def _coast(self, hyp: HypothesisArrays, pred, t: float, dt: float) -> HypothesisArrays:
+        """No supporting blob: continue along the velocity with a reduced weight (free for
+        the first ``coast_grace`` seconds after the last support)."""
+        c = self.config
         hyp.P = self.filter.coast(hyp.P)
         data = hyp.data
         data[:, _POS] = pred
-        data[:, _WEIGHT] = np.maximum(data[:, _WEIGHT] - self.config.coast_rate * dt, 0.0)
+        charged = np.clip(t - data[:, _T] - c.coast_grace, 0.0, dt) if c.coast_grace > 0 else dt
+        data[:, _WEIGHT] = np.maximum(data[:, _WEIGHT] - c.coast_rate * charged, 0.0)
         data[:, _SUPPORTED] = 0.0
         data[:, _STOPPED] = 0.0
         return hyp
