@@ -92,8 +92,13 @@ def markdown_table(results: dict, modes) -> str:
             r = rows.get(mode)
             if r is None:
                 continue
-            lines.append(f'| `{name}` | {mode} | {r["paths"]} of {r["paths_taken"]} | '
-                         f'{r["detected"]} of {r["passing"]} | {r["false_detections"]} | '
-                         f'{r["mota"]:.3f} | {r["false_positives"]} | {r["switches"]} | '
-                         f'{r["median_error"]:.3f} |')
+            paths = f'{r["paths"]} of {r["paths_taken"]}' if r['paths_taken'] else '-'
+            people = f'{r["detected"]} of {r["passing"]}' if r['passing'] else '-'
+            lines.append(f'| `{name}` | {mode} | {paths} | {people} | {r["false_detections"]} | '
+                         f'{_num(r["mota"])} | {r["false_positives"]} | {r["switches"]} | '
+                         f'{_num(r["median_error"])} |')
     return '\n'.join(lines)
+
+
+def _num(v: float) -> str:
+    return '-' if v != v else f'{v:.3f}'          # NaN: nothing to score
