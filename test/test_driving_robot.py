@@ -91,3 +91,59 @@ def test_the_drive_reproduces_the_real_robots_failures_and_the_defaults_fix_them
     assert ev.result['false_detections'] <= 1
     assert path(out) == pytest.approx(true_path, rel=0.05)
     assert ev.result['objects_detected'] >= ev.result['objects_passing'] - 2
+
+
+def _scan(stamp, ranges, range_min=0.03):
+    from laser_tracker.core.scan import Scan
+    n = len(ranges)
+    return Scan(stamp=stamp, ranges=np.asarray(ranges, dtype=float), angle_min=-2.356,
+                angle_increment=4.712 / (n - 1), range_min=range_min, range_max=11.0)
+
+
+@pytest.mark.parametrize('kind', ['inf', 'nan', 'zero', 'mixed', 'range_min_0'])
+def test_scans_without_returns_or_with_every_code_are_harmless(kind, caplog):
+    """All +inf, all NaN, all 0, every code mixed, range_min 0: the pipeline runs on, logs
+    no flood and tracks nothing."""
+    import logging
+    from laser_tracker.core.pipeline import Pipeline
+    rng = np.random.default_rng(0)
+    p = Pipeline()
+    caplog.set_level(logging.WARNING)
+    for k in range(60):
+        n = 768
+        if kind == 'inf':
+            r = np.full(n, np.inf)
+        elif kind == 'nan':
+            r = np.full(n, np.nan)
+        elif kind == 'zero':
+            r = np.zeros(n)
+        else:
+            r = rng.choice([np.inf, -np.inf, np.nan, 0.0, 0.01, 2.0, 5.0], size=n)
+        p.add_odometry(0.1 * k, (0.05 * k, 0.0, 0.0))
+        res = p.step(_scan(0.1 * k + 0.01, r, 0.0 if kind == 'range_min_0' else 0.03))
+        assert not res.hypotheses.confirmed.any()
+    assert len(caplog.records) < 20
+
+
+def test_a_body_that_fills_half_the_view_is_never_tracked():
+    """A robot whose body fills half of its 270 deg view at 0.3-0.6 m drives past posts: no
+    track ever lies on the body, and the posts stay visible."""
+    from laser_tracker.core.pipeline import Pipeline
+    p = Pipeline()
+    n = 768
+    angles = np.linspace(-2.356, 2.356, n)
+    for k in range(120):
+        x = 0.08 * k
+        r = np.full(n, np.inf)
+        for px in np.arange(-20, 20) * 1.0 - x % 1.0:          # posts every metre, 2 m left
+            b = int(round((np.arctan2(2.0, px) + 2.356) / (4.712 / (n - 1))))
+            if 0 <= b < n and np.hypot(px, 2.0) < 10:
+                r[max(b - 2, 0):b + 3] = np.hypot(px, 2.0)
+        r[:n // 2] = 0.3 + 0.3 * np.abs(np.sin(angles[:n // 2])) + 0.002 * np.cos(k)
+        p.add_odometry(0.1 * k, (x, 0.0, 0.0))
+        res = p.step(_scan(0.1 * k + 0.01, r))
+        h = res.hypotheses
+        if len(h) and res.pose is not None and np.isfinite(res.pose).all():
+            near = np.hypot(*(h.position - res.pose[:2]).T) < 1.0
+            assert not (h.confirmed & near).any(), k
+    assert np.isfinite(p.ego.self_mask.ranges[: n // 2]).mean() > 0.9   # the body is learnt
