@@ -228,12 +228,15 @@ def run(factories: Callable | Iterable[Callable], args=None, name: str | None = 
     factories = [factories] if callable(factories) else list(factories)
     name = name or os.path.basename(sys.argv[0] or 'laser_tracker')
     stop = threading.Event()
+    spinning = threading.Event()
     nodes = []
 
     def on_signal(signum, frame):
         if stop.is_set():            # a second Ctrl-C: leave at once
             os._exit(130)
         stop.set()
+        if not spinning.is_set():    # still starting (imports, compiled kernels): give up now
+            raise KeyboardInterrupt
         for node in nodes:           # a callback in progress (e.g. a configure) gives up
             try:
                 getattr(node, 'request_stop', lambda: None)()
@@ -259,6 +262,7 @@ def run(factories: Callable | Iterable[Callable], args=None, name: str | None = 
             except Exception as exc:  # noqa: BLE001 - e.g. a remapping to an invalid name
                 raise ConfigError(f'cannot start: {" ".join(str(exc).split())}') from None
             executor.add_node(nodes[-1])
+        spinning.set()
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
     except ConfigError as exc:
