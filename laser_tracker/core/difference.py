@@ -62,9 +62,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.config import param
+from laser_tracker.core import jit
 from laser_tracker.core.egomotion import SOURCE_ICP, SOURCE_INIT, SOURCE_ODOMETRY, \
     SOURCE_PARTIAL
-from laser_tracker.core.grid import FREE, OCCUPIED, UNKNOWN, lookup_padded, lookup_stack
+from laser_tracker.core.grid import (FREE, OCCUPIED, UNKNOWN, GridHistory, free_depth,
+                                     history_motions, lookup, lookup_grid)
 
 #: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` and
 #: ``constant_velocity`` (coasting: no match accepted) and ``none`` are not.
@@ -205,25 +207,220 @@ def difference_map(grid: np.ndarray, previous_in_current: np.ndarray) -> np.ndar
     return (grid == OCCUPIED) & (previous_in_current == FREE)
 
 
-def relative_motion(a, b) -> tuple[float, float, float]:
-    """Pose ``b`` in the frame of pose ``a`` (SE(2) ``inverse(a) (+) b``), in plain floats:
-    ``geometry.between`` for one pair without numpy's per-call cost."""
-    ax, ay, at = (float(v) for v in a)
-    bx, by, bt = (float(v) for v in b)
-    c, s = math.cos(at), math.sin(at)
-    dx, dy = bx - ax, by - ay
-    return (c * dx + s * dy, -s * dx + c * dy,
-            (bt - at + math.pi) % (2.0 * math.pi) - math.pi)
+# ------------------------------------------------------------------------------ kernels
+#
+# Settings of the difference kernel (a float array: one argument instead of many).
+_WINDOW, _MEMORY, _NEIGHBOURHOOD, _MOTION_DEPTH, _RES = range(5)
+# Settings of the static background: 1 / resolution, static_time, static_occupied, bits.
+_INV, _TAU, _THRESHOLD, _BITS = range(4)
+@jit.kernel
+def _deep_free(i, j, motion, free, meta, cells, resolution, motion_depth):
+    """Whether the beam of an earlier scan covering current cell ``(i, j)`` continued at
+    least ``motion_depth`` times the motion-induced displacement at the cell beyond it
+    (``motion``: the current scanner pose in that scan's frame; ``free``, ``meta``: that
+    grid's free ranges and row of ``GridBuilder.meta``)."""
+    x, y, theta = motion[0], motion[1], motion[2]
+    c, s = math.cos(theta), math.sin(theta)
+    px = (i + (0.5 - cells / 2.0)) * resolution
+    py = (j + (0.5 - cells / 2.0)) * resolution
+    qx = c * px - s * py + x
+    qy = s * px + c * py + y
+    need = motion_depth * (math.hypot(x, y) + math.hypot(qx, qy) * abs(theta))
+    return free_depth(qx, qy, free, int(meta[6]), meta[4], meta[5]) >= need
 
 
-def not_occupied_before(ij: np.ndarray, stack: np.ndarray, indices, poses, pose,
-                        resolution: float) -> np.ndarray:
-    """Mask over the rows of ``ij`` (cells of the current grid at scanner pose ``pose``): True
-    where none of the earlier grids ``stack[indices[k]]`` (padded; scanner poses ``poses[k]``)
-    had the cell OCCUPIED, each brought into the current frame by the relative motion."""
-    motions = [relative_motion(p, pose) for p in poses]
-    before = lookup_stack(stack, indices, motions, resolution, ij)
-    return ~(before == OCCUPIED).any(axis=0)
+@jit.kernel
+def _background_count(x, y, key, count, last, settings, stamp):
+    """The largest decayed occupancy (s) of the background among the cells within one cell
+    of point ``(x, y)`` (odometry frame)."""
+    bits = int(settings[_BITS])
+    mask = (1 << bits) - 1
+    i0 = np.int64(math.floor(x * settings[_INV]))
+    j0 = np.int64(math.floor(y * settings[_INV]))
+    best = 0.0
+    for i in range(i0 - 1, i0 + 2):
+        for j in range(j0 - 1, j0 + 2):
+            slot = ((i & mask) << bits) | (j & mask)
+            if key[slot] == (i << 32) + j:
+                best = max(best, count[slot] * math.exp((last[slot] - stamp) / settings[_TAU]))
+    return best
+
+
+@jit.kernel
+def _to_world(pose, x, y):
+    """Point ``(x, y)`` of the scanner frame at ``pose`` in the odometry frame
+    (``geometry.transform_points``)."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return c * x - s * y + pose[0], s * x + c * y + pose[1]
+
+
+@jit.kernel
+def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta, order, pose,
+             stamp, settings, cells, key, count, last, background):
+    """Equation 1 with memory and free-space evidence at the cells occupied now: the sorted
+    unique flat indices of the changed cells (see :func:`changed_with_history`), without
+    those on static background (``background``: its settings, empty when it is off)."""
+    n_grids = order.size
+    n_free = 1
+    for k in range(1, n_grids):
+        if stamp - meta[order[k], 3] <= settings[_WINDOW]:
+            n_free += 1
+    n_occ = min(n_grids, int(settings[_MEMORY]) + 1)
+    depth = max(n_free, n_occ)
+    res = settings[_RES]
+    motions = history_motions(meta, order[:depth], pose)
+    values = lookup(stack, lazy, free, beam, reach, order[:depth], motions, frame_ij, cells,
+                    res, 0)
+    neighbourhood = int(settings[_NEIGHBOURHOOD])
+    around = lookup(stack, lazy, free, beam, reach, order[:1], motions, frame_ij, cells,
+                    res, neighbourhood) if neighbourhood > 0 else values[:1, :0]
+    changed = np.zeros(frame_ij.shape[0], np.intp)
+    n_changed = 0
+    for r in range(frame_ij.shape[0]):
+        if neighbourhood > 0:                   # the previous cell and its neighbours
+            all_free = True
+            for n in range(around.shape[2]):
+                all_free &= around[0, r, n] == FREE
+            if all_free:
+                values[0, r, 0] = FREE
+            elif values[0, r, 0] == FREE:
+                values[0, r, 0] = UNKNOWN
+        occupied = False
+        for k in range(n_occ):
+            occupied |= values[k, r, 0] == OCCUPIED
+        if occupied:
+            continue
+        seen_free = False
+        for k in range(n_free):
+            if values[k, r, 0] == FREE and (settings[_MOTION_DEPTH] <= 0.0 or _deep_free(
+                    frame_ij[r, 0], frame_ij[r, 1], motions[k], free[order[k]],
+                    meta[order[k]], cells, res, settings[_MOTION_DEPTH])):
+                seen_free = True
+                break
+        if not seen_free:
+            continue
+        if background.size:
+            x, y = _to_world(pose, points[r, 0], points[r, 1])
+            if _background_count(x, y, key, count, last, background, stamp) \
+                    >= background[_THRESHOLD]:
+                continue
+        changed[n_changed] = frame_flat[r]
+        n_changed += 1
+    return np.unique(changed[:n_changed])
+
+
+@jit.kernel
+def _walked_in(xy, pose, stamp, stack, lazy, free, beam, reach, meta, order, cells,
+               resolution, key, count, last, background):
+    """Per point ``xy`` (the scanner frame at ``pose``): (free, static): was its cell seen
+    FREE in one of the grids ``order`` and is it not on static background, and is it on
+    static background."""
+    n = xy.shape[0]
+    static = np.zeros(n, np.bool_)
+    if background.size:
+        for r in range(n):
+            x, y = _to_world(pose, xy[r, 0], xy[r, 1])
+            static[r] = _background_count(x, y, key, count, last, background, stamp) \
+                >= background[_THRESHOLD]
+    free_before = np.zeros(n, np.bool_)
+    if order.size == 0:
+        return free_before, static
+    ij = np.empty((n, 2))
+    inside = np.ones(n, np.bool_)
+    for r in range(n):
+        for a in range(2):
+            v = math.floor(xy[r, a] / resolution + cells / 2.0)
+            inside[r] &= 0 <= v < cells
+            ij[r, a] = min(max(v, 0.0), cells - 1.0)
+    values = lookup(stack, lazy, free, beam, reach, order, history_motions(meta, order, pose),
+                    ij, cells, resolution, 0)
+    for r in range(n):
+        if inside[r] and not static[r]:
+            for k in range(order.size):
+                free_before[r] |= values[k, r, 0] == FREE
+    return free_before, static
+
+
+@jit.kernel
+def _background_counts(xy, key, count, last, settings, stamp):
+    out = np.empty(xy.shape[0])
+    for r in range(xy.shape[0]):
+        out[r] = _background_count(xy[r, 0], xy[r, 1], key, count, last, settings, stamp)
+    return out
+
+
+@jit.kernel
+def _background_add(points, pose, movers, radius, key, count, last, settings, stamp, step):
+    """The end points ``points`` (scanner frame at ``pose``) farther than ``radius`` from
+    every mover (``movers``, same frame) hit their background cells, each cell once."""
+    bits = int(settings[_BITS])
+    mask = (1 << bits) - 1
+    n = points.shape[0]
+    slots = np.empty(n, np.int64)
+    keys = np.empty(n, np.int64)
+    values = np.empty(n)
+    k = 0
+    for r in range(n):
+        near = False
+        for b in range(movers.shape[0]):
+            dx, dy = points[r, 0] - movers[b, 0], points[r, 1] - movers[b, 1]
+            near |= math.sqrt(dx * dx + dy * dy) <= radius
+        if near:
+            continue
+        x, y = _to_world(pose, points[r, 0], points[r, 1])
+        i = np.int64(math.floor(x * settings[_INV]))
+        j = np.int64(math.floor(y * settings[_INV]))
+        slot = ((i & mask) << bits) | (j & mask)
+        keys[k], slots[k] = (i << 32) + j, slot
+        # Several points of one cell write the same value: each cell counts once.
+        values[k] = (count[slot] * math.exp((last[slot] - stamp) / settings[_TAU])
+                     if key[slot] == keys[k] else 0.0) + step
+        k += 1
+    for r in range(k):
+        key[slots[r]] = keys[r]
+        count[slots[r]] = values[r]
+        last[slots[r]] = stamp
+
+
+def changed_with_history(frame, stamp: float, pose, history: GridHistory,
+                         config: DifferenceConfig,
+                         background: StaticBackground | None = None) -> np.ndarray:
+    """Equation 1 with memory and free-space evidence at the cells occupied now: the sorted
+    unique flat indices of the changed cells, in one kernel call.
+
+    ``frame``, ``stamp``, ``pose``: the current scan's grid, stamp and scanner pose;
+    ``history``: the earlier grids with their poses and stamps. A cell is changed when it
+    was seen FREE (and, with ``motion_depth``, by a beam that went on far enough beyond it,
+    see :func:`deep_free`) in one of the grids of the last ``free_window`` seconds (the
+    previous grid at least; with ``free_neighbourhood``, the previous grid's neighbours too),
+    was OCCUPIED in none of the previous grid and the ``memory`` grids before it, and (with
+    ``background``) is not static background. With ``free_window`` 0 and ``memory`` 0 this
+    is Equation 1 exactly.
+    """
+    if frame.ij.shape[0] == 0 or not len(history):
+        return frame.flat[:0]
+    bg = background.arrays if background is not None else _NO_BACKGROUND
+    return _changed(frame.ij, frame.flat, frame.points, *history.builder.arrays[:5],
+                    history.builder.meta, history.order, np.asarray(pose, dtype=float),
+                    float(stamp), _settings(config, history.builder.config.resolution),
+                    history.builder.cells, *bg)
+
+
+def walked_in(xy: np.ndarray, pose, stamp: float, history: GridHistory,
+              background: StaticBackground | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per point ``xy`` (k, 2; the scanner frame at ``pose``, whose grid is ``history[0]``):
+    (free, static): was its cell seen FREE in one of the earlier grids and is it not on
+    static background, and is it on static background (``background``; None: nothing is)."""
+    b = history.builder
+    bg = background.arrays if background is not None else _NO_BACKGROUND
+    return _walked_in(np.ascontiguousarray(xy, dtype=float), np.asarray(pose, dtype=float),
+                      float(stamp), *b.arrays[:5], b.meta, history.order[1:], b.cells,
+                      float(b.config.resolution), *bg)
+
+
+def _settings(config: DifferenceConfig, resolution: float) -> np.ndarray:
+    return np.array([config.free_window, config.memory, config.free_neighbourhood,
+                     config.motion_depth, resolution])
 
 
 def deep_free(ij: np.ndarray, previous, motion, resolution: float, cells: int,
@@ -232,71 +429,21 @@ def deep_free(ij: np.ndarray, previous, motion, resolution: float, cells: int,
     scan covering the cell continued at least ``motion_depth`` times the motion-induced
     displacement at the cell beyond it (``previous``: the previous ``GridFrame``; ``motion``:
     current scanner pose in the previous scanner frame)."""
-    x, y, theta = (float(v) for v in motion)
-    c, s = math.cos(theta), math.sin(theta)
-    p = (ij + (0.5 - cells / 2.0)) * resolution
-    prev = np.empty_like(p)
-    prev[:, 0] = c * p[:, 0] - s * p[:, 1] + x
-    prev[:, 1] = s * p[:, 0] + c * p[:, 1] + y
-    need = config.motion_depth * (math.hypot(x, y)
-                                  + np.hypot(prev[:, 0], prev[:, 1]) * abs(theta))
-    return previous.free_depth(prev) >= need
+    meta = previous.builder.meta[previous.index]
+    motion = np.asarray(motion, dtype=float)
+    return np.array([_deep_free(i, j, motion, previous.free, meta, cells, resolution,
+                                config.motion_depth) for i, j in ij.tolist()], dtype=bool)
 
 
 def changed_cells(ij: np.ndarray, previous_padded: np.ndarray, motion, resolution: float,
                   config: DifferenceConfig) -> np.ndarray:
-    """Equation 1 evaluated at the occupied cells only: a boolean mask over the rows of ``ij``.
-
-    ``ij``: cell indices (k, 2) of the cells occupied now (one row per end point, repeats
-    allowed); ``previous_padded``: the previous grid in its own frame with its UNKNOWN border
-    (``GridFrame.padded``); ``motion``: current scanner pose in the previous scanner frame.
-    """
-    if ij.shape[0] == 0:
-        return np.zeros(0, dtype=bool)
+    """Equation 1 alone at the cells ``ij`` (k, 2) occupied now: a boolean mask over them.
+    ``previous_padded``: the previous grid in its own frame with its UNKNOWN border;
+    ``motion``: the current scanner pose in the previous scanner frame. With
+    ``free_neighbourhood`` the previous cell's neighbours must have been FREE too."""
     k = config.free_neighbourhood
-    before = lookup_padded(previous_padded, motion, resolution, ij, neighbourhood=k)
-    if k == 0:
-        return before[:, 0] == FREE
+    before = lookup_grid(previous_padded, motion, resolution, ij, k)
     return (before == FREE).all(axis=1)
-
-
-def changed_with_history(frame, stamp: float, history, pose, stack, resolution: float,
-                         cells: int, config: DifferenceConfig) -> np.ndarray:
-    """Equation 1 with memory and free-space evidence, at the cells occupied now: a boolean
-    mask over the rows of ``frame.ij``.
-
-    ``frame``, ``stamp``, ``pose``: the current scan's grid, stamp and scanner pose;
-    ``history``: earlier ``(GridFrame, scanner pose, stamp)``, newest (the previous scan) first;
-    ``stack``: the builder's grid buffers they live in. A cell is changed when it was seen
-    FREE (and, with ``motion_depth``, by a beam that went on far enough beyond it) in one of
-    the grids of the last ``free_window`` seconds (the previous grid at least), and was
-    OCCUPIED in none of the previous grid and the ``memory`` grids before it. With
-    ``free_window`` 0 and ``memory`` 0 this is Equation 1 exactly.
-    """
-    ij = frame.ij
-    if ij.shape[0] == 0 or not history:
-        return np.zeros(ij.shape[0], dtype=bool)
-    n_free = 1 + sum(1 for h in history[1:] if stamp - h[2] <= config.free_window)
-    n_occ = min(len(history), config.memory + 1)
-    depth = max(n_free, n_occ)
-    motions = [relative_motion(h[1], pose) for h in history[:depth]]
-    values = lookup_stack(stack, [h[0].index for h in history[:depth]], motions, resolution,
-                          ij)
-    if config.free_neighbourhood:
-        before = lookup_padded(stack[history[0][0].index], motions[0], resolution, ij,
-                               neighbourhood=config.free_neighbourhood)
-        all_free = (before == FREE).all(axis=1)
-        values[0] = np.where(all_free, FREE, np.where(values[0] == FREE, UNKNOWN, values[0]))
-    free = values[:n_free] == FREE
-    if config.motion_depth > 0:
-        for j in range(n_free):
-            rows = np.flatnonzero(free[j])
-            if rows.size:
-                free[j, rows] = deep_free(ij[rows], history[j][0], motions[j], resolution,
-                                          cells, config)
-    changed = free.any(axis=0)
-    changed &= ~(values[:n_occ] == OCCUPIED).any(axis=0)
-    return changed
 
 
 class StaticBackground:
@@ -307,62 +454,48 @@ class StaticBackground:
     anywhere without scrolling and a slot reused far away reads as empty. Each slot keeps the
     time it has been seen occupied, decayed exponentially with time constant ``static_time``,
     and the time of its last hit (decay is applied lazily when a slot is read or hit). Per
-    scan only the cells of the scan's end points are touched.
+    scan only the cells of the scan's end points are touched (the kernels of the difference
+    and the detection stage read and write it through :attr:`arrays`).
     """
 
     def __init__(self, resolution: float, config: DifferenceConfig, size: int = 512):
         self.resolution = float(resolution)
-        self.tau = float(config.static_time)
-        self.threshold = float(config.static_occupied)
         self.max_step = float(config.static_max_step)
         self.previous: float | None = None
-        self.bits = max(1, int(size - 1).bit_length())      # size: a power of two
-        self.mask = (1 << self.bits) - 1
-        n = 1 << (2 * self.bits)
+        bits = max(1, int(size - 1).bit_length())      # size: a power of two
+        n = 1 << (2 * bits)
         self.key = np.full(n, np.iinfo(np.int64).min, np.int64)
         self.count = np.zeros(n, np.float64)
         self.last = np.zeros(n, np.float64)
-        r = np.arange(-1, 2)
-        self._around = np.stack(np.meshgrid(r, r, indexing='ij'), axis=-1).reshape(-1, 2)
+        self.settings = np.array([1.0 / self.resolution, config.static_time,
+                                  config.static_occupied, bits])
 
-    def _slots(self, ij: np.ndarray):
-        """Key and slot of integer cells ``ij`` (..., 2)."""
-        key = (ij[..., 0] << 32) + ij[..., 1]
-        slot = ((ij[..., 0] & self.mask) << self.bits) | (ij[..., 1] & self.mask)
-        return key, slot
+    @property
+    def arrays(self) -> tuple:
+        return self.key, self.count, self.last, self.settings
 
     def counts(self, xy: np.ndarray, stamp: float) -> np.ndarray:
         """The largest decayed occupancy (s) among the cells within one cell of each point
         ``xy`` (k, 2; odometry frame)."""
-        if xy.shape[0] == 0:
-            return np.zeros(0)
-        ij = np.floor(xy * (1.0 / self.resolution)).astype(np.int64)
-        key, slot = self._slots(ij[:, None, :] + self._around[None])
-        value = np.zeros(key.shape)
-        mine = np.flatnonzero(self.key[slot] == key)
-        if mine.size:
-            s = slot.ravel()[mine]
-            value.ravel()[mine] = self.count[s] * np.exp((self.last[s] - stamp) / self.tau)
-        return value.max(axis=1)
+        return _background_counts(np.asarray(xy, dtype=float), *self.arrays, float(stamp))
 
     def static(self, xy: np.ndarray, stamp: float) -> np.ndarray:
         """Mask: points on static structure (see the class doc)."""
-        return self.counts(xy, stamp) >= self.threshold
+        return self.counts(xy, stamp) >= self.settings[_THRESHOLD]
 
-    def add(self, xy: np.ndarray, stamp: float) -> None:
-        """One scan's end points (odometry frame) hit their cells, each cell once, adding the
-        time since the previous scan (at most ``max_step``)."""
+    def add(self, xy: np.ndarray, stamp: float, pose=(0.0, 0.0, 0.0), movers=None,
+            radius: float = 0.0) -> None:
+        """One scan's end points hit their cells, each cell once, adding the time since the
+        previous scan (at most ``max_step``). ``xy``: in the frame of ``pose`` (default the
+        odometry frame); points within ``radius`` of one of ``movers`` (same frame) are left
+        out."""
         step = 0.0 if self.previous is None else \
             min(max(stamp - self.previous, 0.0), self.max_step)
         self.previous = stamp
-        if xy.shape[0] == 0:
-            return
-        ij = np.floor(xy * (1.0 / self.resolution)).astype(np.int64)
-        key, slot = self._slots(ij)
-        # Several points of one cell write the same value: each cell counts once.
-        decayed = np.where(self.key[slot] == key,
-                           self.count[slot] * np.exp((self.last[slot] - stamp) / self.tau),
-                           0.0)
-        self.key[slot] = key
-        self.count[slot] = decayed + step
-        self.last[slot] = stamp
+        movers = _NO_POINTS if movers is None else movers
+        _background_add(np.asarray(xy, dtype=float), np.asarray(pose, dtype=float), movers,
+                        float(radius), *self.arrays, float(stamp), step)
+
+
+_NO_POINTS = np.zeros((0, 2))
+_NO_BACKGROUND = (np.zeros(1, np.int64), np.zeros(1), np.zeros(1), np.zeros(0))
