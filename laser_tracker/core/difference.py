@@ -65,8 +65,9 @@ from laser_tracker.config import param
 from laser_tracker.core import jit
 from laser_tracker.core.egomotion import SOURCE_ICP, SOURCE_INIT, SOURCE_ODOMETRY, \
     SOURCE_PARTIAL
-from laser_tracker.core.grid import (FREE, OCCUPIED, UNKNOWN, GridHistory, free_depth,
-                                     history_motions, lookup, lookup_grid)
+from laser_tracker.core.grid import (FREE, NEIGHBOURS_I, NEIGHBOURS_J, OCCUPIED, PAD, UNKNOWN,
+                                     GridHistory, covering_beam, history_motions, index_map,
+                                     lookup, lookup_grid, mapped_cell)
 
 #: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` and
 #: ``constant_velocity`` (coasting: no match accepted) and ``none`` are not.
@@ -213,20 +214,47 @@ def difference_map(grid: np.ndarray, previous_in_current: np.ndarray) -> np.ndar
 _WINDOW, _MEMORY, _NEIGHBOURHOOD, _MOTION_DEPTH, _RES = range(5)
 # Settings of the static background: 1 / resolution, static_time, static_occupied, bits.
 _INV, _TAU, _THRESHOLD, _BITS = range(4)
-@jit.kernel
-def _deep_free(i, j, motion, free, meta, cells, resolution, motion_depth):
-    """Whether the beam of an earlier scan covering current cell ``(i, j)`` continued at
-    least ``motion_depth`` times the motion-induced displacement at the cell beyond it
-    (``motion``: the current scanner pose in that scan's frame; ``free``, ``meta``: that
-    grid's free ranges and row of ``GridBuilder.meta``)."""
-    x, y, theta = motion[0], motion[1], motion[2]
+@jit.inline
+def _displaced(i, j, x, y, theta, cells, resolution, motion_depth):
+    """Current cell ``(i, j)`` in the frame of an earlier scan (``x, y, theta``: the current
+    scanner pose there) and how far beyond it that scan's beam must have freed space: at
+    least ``motion_depth`` times the displacement the motion causes at the cell."""
     c, s = math.cos(theta), math.sin(theta)
     px = (i + (0.5 - cells / 2.0)) * resolution
     py = (j + (0.5 - cells / 2.0)) * resolution
     qx = c * px - s * py + x
     qy = s * px + c * py + y
-    need = motion_depth * (math.hypot(x, y) + math.hypot(qx, qy) * abs(theta))
-    return free_depth(qx, qy, free, int(meta[6]), meta[4], meta[5]) >= need
+    return qx, qy, motion_depth * (math.hypot(x, y) + math.hypot(qx, qy) * abs(theta))
+
+
+@jit.inline
+def _earlier(stack, lazy, free, beam, reach, meta, buffer, maps, k, i, j, cells, resolution,
+             around, motion_depth):
+    """The value of the earlier grid in ``buffer`` (``maps[k]``: its index map, then the
+    current scanner pose in its frame) at current cell ``(i, j)``: with ``around`` 5 or 9
+    (``free_neighbourhood``) FREE only when the mapped cell's 4- or 8-neighbours are FREE
+    too, and with ``motion_depth`` only when the beam that freed it went on far enough
+    beyond (:func:`_displaced`); else a FREE cell reads UNKNOWN. Reads the arrays
+    directly: a helper that passes them on costs reference counting per cell."""
+    m = cells + 2 * PAD
+    p = mapped_cell(i, j, maps[k, 0], maps[k, 1], maps[k, 2], maps[k, 3], cells)
+    v = stack[buffer, p]
+    if v == UNKNOWN and lazy[buffer] and reach[p] < free[buffer, beam[p]]:
+        v = FREE
+    if v != FREE:
+        return v
+    for n in range(1, around):
+        q = p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
+        if not (stack[buffer, q] == FREE or (stack[buffer, q] == UNKNOWN and lazy[buffer]
+                                             and reach[q] < free[buffer, beam[q]])):
+            return UNKNOWN
+    if motion_depth > 0.0:
+        qx, qy, need = _displaced(i, j, maps[k, 4], maps[k, 5], maps[k, 6], cells,
+                                  resolution, motion_depth)
+        b = covering_beam(qx, qy, meta[buffer, 4], meta[buffer, 5], meta[buffer, 6])
+        if not (b >= 0 and np.float64(free[buffer, b]) - math.hypot(qx, qy) >= need):
+            return UNKNOWN
+    return FREE
 
 
 @jit.kernel
@@ -268,36 +296,35 @@ def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta,
     n_occ = min(n_grids, int(settings[_MEMORY]) + 1)
     depth = max(n_free, n_occ)
     res = settings[_RES]
+    motion_depth = settings[_MOTION_DEPTH]
     motions = history_motions(meta, order[:depth], pose)
-    values = lookup(stack, lazy, free, beam, reach, order[:depth], motions, frame_ij, cells,
-                    res, 0)
+    maps = np.empty((depth, 7))                 # index map, then the motion
+    for k in range(depth):
+        maps[k, 0], maps[k, 1], maps[k, 2], maps[k, 3] = index_map(
+            motions[k, 0], motions[k, 1], motions[k, 2], cells, res)
+        maps[k, 4:] = motions[k]
     neighbourhood = int(settings[_NEIGHBOURHOOD])
-    around = lookup(stack, lazy, free, beam, reach, order[:1], motions, frame_ij, cells,
-                    res, neighbourhood) if neighbourhood > 0 else values[:1, :0]
+    around = 1 if neighbourhood <= 0 else (5 if neighbourhood == 1 else 9)
     changed = np.zeros(frame_ij.shape[0], np.intp)
     n_changed = 0
+    cell_changed = False
     for r in range(frame_ij.shape[0]):
-        if neighbourhood > 0:                   # the previous cell and its neighbours
-            all_free = True
-            for n in range(around.shape[2]):
-                all_free &= around[0, r, n] == FREE
-            if all_free:
-                values[0, r, 0] = FREE
-            elif values[0, r, 0] == FREE:
-                values[0, r, 0] = UNKNOWN
-        occupied = False
-        for k in range(n_occ):
-            occupied |= values[k, r, 0] == OCCUPIED
-        if occupied:
-            continue
-        seen_free = False
-        for k in range(n_free):
-            if values[k, r, 0] == FREE and (settings[_MOTION_DEPTH] <= 0.0 or _deep_free(
-                    frame_ij[r, 0], frame_ij[r, 1], motions[k], free[order[k]],
-                    meta[order[k]], cells, res, settings[_MOTION_DEPTH])):
-                seen_free = True
-                break
-        if not seen_free:
+        if r == 0 or frame_flat[r] != frame_flat[r - 1]:   # a new cell (beams share cells)
+            # OCCUPIED in none of the first n_occ earlier grids, seen FREE (deep enough) in
+            # one of the first n_free; each read only when needed (most cells occupied now
+            # were occupied in the previous grid: one read).
+            cell_changed = False
+            for k in range(depth):
+                v = _earlier(stack, lazy, free, beam, reach, meta, order[k], maps, k,
+                             frame_ij[r, 0], frame_ij[r, 1], cells, res,
+                             around if k == 0 else 1, motion_depth if k < n_free else 0.0)
+                if k < n_occ and v == OCCUPIED:
+                    cell_changed = False
+                    break
+                cell_changed |= k < n_free and v == FREE
+                if cell_changed and k >= n_occ - 1:
+                    break
+        if not cell_changed:
             continue
         if background.size:
             x, y = _to_world(pose, points[r, 0], points[r, 1])
@@ -310,35 +337,50 @@ def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta,
 
 
 @jit.kernel
-def _walked_in(xy, pose, stamp, stack, lazy, free, beam, reach, meta, order, cells,
-               resolution, key, count, last, background):
-    """Per point ``xy`` (the scanner frame at ``pose``): (free, static): was its cell seen
-    FREE in one of the grids ``order`` and is it not on static background, and is it on
-    static background."""
-    n = xy.shape[0]
-    static = np.zeros(n, np.bool_)
-    if background.size:
-        for r in range(n):
-            x, y = _to_world(pose, xy[r, 0], xy[r, 1])
-            static[r] = _background_count(x, y, key, count, last, background, stamp) \
-                >= background[_THRESHOLD]
-    free_before = np.zeros(n, np.bool_)
-    if order.size == 0:
-        return free_before, static
-    ij = np.empty((n, 2))
-    inside = np.ones(n, np.bool_)
+def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, meta, order,
+            cells, resolution, key, count, last, background):
+    """People (``persons`` at their ``legs``, rows of ``leg_xy``, -1: none; the scanner frame
+    at ``pose``) in the odometry frame with, per person: were the places of all its legs seen
+    FREE in one of the grids ``order`` and are they not static background (someone who
+    walked in), are all of them static background, and the distance between its two legs
+    (NaN for one); and ``leg_xy`` in the odometry frame."""
+    n, k = persons.shape[0], leg_xy.shape[0]
+    world = np.empty((n, 2))
     for r in range(n):
-        for a in range(2):
-            v = math.floor(xy[r, a] / resolution + cells / 2.0)
-            inside[r] &= 0 <= v < cells
-            ij[r, a] = min(max(v, 0.0), cells - 1.0)
-    values = lookup(stack, lazy, free, beam, reach, order, history_motions(meta, order, pose),
-                    ij, cells, resolution, 0)
+        world[r, 0], world[r, 1] = _to_world(pose, persons[r, 0], persons[r, 1])
+    legs_world = np.empty((k, 2))
+    for r in range(k):
+        legs_world[r, 0], legs_world[r, 1] = _to_world(pose, leg_xy[r, 0], leg_xy[r, 1])
+    spread = np.full(n, np.nan)
+    walked = np.ones(n, np.bool_)
+    standing = np.ones(n, np.bool_)
+    motions = history_motions(meta, order, pose)
+    ij = np.empty((1, 2))
     for r in range(n):
-        if inside[r] and not static[r]:
-            for k in range(order.size):
-                free_before[r] |= values[k, r, 0] == FREE
-    return free_before, static
+        if legs[r, 1] >= 0:
+            dx = leg_xy[legs[r, 0], 0] - leg_xy[legs[r, 1], 0]
+            dy = leg_xy[legs[r, 0], 1] - leg_xy[legs[r, 1], 1]
+            spread[r] = math.hypot(dx, dy)
+        for leg in legs[r]:
+            if leg < 0:
+                continue
+            x, y = legs_world[leg, 0], legs_world[leg, 1]
+            static = background.size > 0 and _background_count(
+                x, y, key, count, last, background, stamp) >= background[_THRESHOLD]
+            inside = True
+            for a in range(2):
+                v = math.floor(leg_xy[leg, a] / resolution + cells / 2.0)
+                inside &= 0 <= v < cells
+                ij[0, a] = min(max(v, 0.0), cells - 1.0)
+            seen_free = False
+            if inside and not static and order.size:
+                values = lookup(stack, lazy, free, beam, reach, order, motions, ij, cells,
+                                resolution, 0)
+                for q in range(order.size):
+                    seen_free |= values[q, 0, 0] == FREE
+            walked[r] &= seen_free
+            standing[r] &= static
+    return world, walked, standing, spread, legs_world
 
 
 @jit.kernel
@@ -352,9 +394,14 @@ def _background_counts(xy, key, count, last, settings, stamp):
 @jit.kernel
 def _background_add(points, pose, movers, radius, key, count, last, settings, stamp, step):
     """The end points ``points`` (scanner frame at ``pose``) farther than ``radius`` from
-    every mover (``movers``, same frame) hit their background cells, each cell once."""
+    every mover (``movers``, odometry frame) hit their background cells, each cell once."""
     bits = int(settings[_BITS])
     mask = (1 << bits) - 1
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    local = np.empty((movers.shape[0], 2))             # the movers in the scanner frame
+    for b in range(movers.shape[0]):
+        dx, dy = movers[b, 0] - pose[0], movers[b, 1] - pose[1]
+        local[b, 0], local[b, 1] = c * dx + s * dy, -s * dx + c * dy
     n = points.shape[0]
     slots = np.empty(n, np.int64)
     keys = np.empty(n, np.int64)
@@ -362,8 +409,8 @@ def _background_add(points, pose, movers, radius, key, count, last, settings, st
     k = 0
     for r in range(n):
         near = False
-        for b in range(movers.shape[0]):
-            dx, dy = points[r, 0] - movers[b, 0], points[r, 1] - movers[b, 1]
+        for b in range(local.shape[0]):
+            dx, dy = points[r, 0] - local[b, 0], points[r, 1] - local[b, 1]
             near |= math.sqrt(dx * dx + dy * dy) <= radius
         if near:
             continue
@@ -406,16 +453,16 @@ def changed_with_history(frame, stamp: float, pose, history: GridHistory,
                     history.builder.cells, *bg)
 
 
-def walked_in(xy: np.ndarray, pose, stamp: float, history: GridHistory,
-              background: StaticBackground | None) -> tuple[np.ndarray, np.ndarray]:
-    """Per point ``xy`` (k, 2; the scanner frame at ``pose``, whose grid is ``history[0]``):
-    (free, static): was its cell seen FREE in one of the earlier grids and is it not on
-    static background, and is it on static background (``background``; None: nothing is)."""
+def people_in_odometry(people, pose, stamp: float, history: GridHistory,
+                       background: StaticBackground | None) -> tuple:
+    """``people`` (``person_detector.PersonDetections`` of the scan at ``pose``, whose grid
+    is ``history[0]``) in the odometry frame: (positions, walked in, on static background,
+    leg spread) per person (see :func:`_people`) and the positions of their clusters."""
     b = history.builder
     bg = background.arrays if background is not None else _NO_BACKGROUND
-    return _walked_in(np.ascontiguousarray(xy, dtype=float), np.asarray(pose, dtype=float),
-                      float(stamp), *b.arrays[:5], b.meta, history.order[1:], b.cells,
-                      float(b.config.resolution), *bg)
+    return _people(people.xy, people.legs, np.ascontiguousarray(people.leg_xy, dtype=float),
+                   np.asarray(pose, dtype=float), float(stamp), *b.arrays[:5], b.meta,
+                   history.order[1:], b.cells, float(b.config.resolution), *bg)
 
 
 def _settings(config: DifferenceConfig, resolution: float) -> np.ndarray:
@@ -429,10 +476,15 @@ def deep_free(ij: np.ndarray, previous, motion, resolution: float, cells: int,
     scan covering the cell continued at least ``motion_depth`` times the motion-induced
     displacement at the cell beyond it (``previous``: the previous ``GridFrame``; ``motion``:
     current scanner pose in the previous scanner frame)."""
-    meta = previous.builder.meta[previous.index]
-    motion = np.asarray(motion, dtype=float)
-    return np.array([_deep_free(i, j, motion, previous.free, meta, cells, resolution,
-                                config.motion_depth) for i, j in ij.tolist()], dtype=bool)
+    b = previous.builder
+    meta = b.meta[previous.index]
+    out = np.zeros(ij.shape[0], dtype=bool)
+    for r, (i, j) in enumerate(ij.tolist()):
+        qx, qy, need = _displaced(i, j, *(float(v) for v in motion), cells, resolution,
+                                  config.motion_depth)
+        beam = covering_beam(qx, qy, meta[4], meta[5], int(meta[6]))
+        out[r] = beam >= 0 and float(b.free[previous.index, beam]) - math.hypot(qx, qy) >= need
+    return out
 
 
 def changed_cells(ij: np.ndarray, previous_padded: np.ndarray, motion, resolution: float,
@@ -487,8 +539,8 @@ class StaticBackground:
             radius: float = 0.0) -> None:
         """One scan's end points hit their cells, each cell once, adding the time since the
         previous scan (at most ``max_step``). ``xy``: in the frame of ``pose`` (default the
-        odometry frame); points within ``radius`` of one of ``movers`` (same frame) are left
-        out."""
+        odometry frame); points within ``radius`` of one of ``movers`` (odometry frame) are
+        left out."""
         step = 0.0 if self.previous is None else \
             min(max(stamp - self.previous, 0.0), self.max_step)
         self.previous = stamp

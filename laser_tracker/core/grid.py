@@ -409,7 +409,7 @@ def _render(occupied, free, beam, reach):
             occupied[p] = FREE
 
 
-@jit.kernel
+@jit.inline
 def cell_value(stack, lazy, free, beam, reach, k, p):
     """The value of cell ``p`` (padded flat index) of the grid in buffer ``k``: its mark
     (OCCUPIED; or any value once rendered), else FREE when the ray table says its beam
@@ -444,7 +444,7 @@ def index_map(x, y, theta, cells, resolution):
     return c, s, u0, v0
 
 
-@jit.kernel
+@jit.inline
 def mapped_cell(i, j, c, s, u0, v0, cells):
     """Padded flat index of the earlier grid's cell nearest to current cell ``(i, j)``
     (:func:`index_map`; scipy's order-0 rounding, floor(x + 0.5)); outside the grid: the
@@ -454,21 +454,17 @@ def mapped_cell(i, j, c, s, u0, v0, cells):
     return (int(u) + PAD) * (cells + 2 * PAD) + int(v) + PAD
 
 
-@jit.kernel
-def free_depth(x, y, free, n_beams, angle_min, angle_increment):
-    """How far (m) beyond point ``(x, y)`` (a grid's scanner frame) the beam covering it
-    (the one nearest its bearing, as in the ray table) continued freeing space: that
-    beam's free range minus the point's range; negative where the beam stopped short, -inf
-    outside the field of view."""
+@jit.inline
+def covering_beam(x, y, angle_min, angle_increment, n_beams):
+    """The beam covering point ``(x, y)`` of a scan's frame (the one nearest its bearing, as
+    in the ray table), -1 outside the field of view."""
     inc = angle_increment
     k = ((math.atan2(y, x) - angle_min) * math.copysign(1.0, inc)) % (2.0 * math.pi) / abs(inc)
     beam = np.rint(k)
     wrapped = np.rint(k - 2.0 * math.pi / abs(inc))
     if beam > n_beams - 1 and wrapped >= 0:
         beam = wrapped
-    if not 0 <= beam <= n_beams - 1:
-        return -np.inf
-    return np.float64(free[int(beam)]) - math.hypot(x, y)
+    return int(beam) if 0 <= beam <= n_beams - 1 else -1
 
 
 @dataclass
@@ -502,9 +498,16 @@ class GridFrame:
         return self.padded[PAD:-PAD, PAD:-PAD]
 
     def free_depth(self, xy: np.ndarray) -> np.ndarray:
-        """:func:`free_depth` of each point ``xy`` (k, 2; this scan's frame)."""
-        return np.array([free_depth(x, y, self.free, self.free.size, self.angle_min,
-                                    self.angle_increment) for x, y in xy.tolist()])
+        """How far (m) beyond each point ``xy`` (k, 2; this scan's frame) the beam covering it
+        (:func:`covering_beam`) continued freeing space: the free range of that beam minus
+        the point's range. Negative where the beam stopped short, -inf outside the field of
+        view."""
+        out = np.full(xy.shape[0], -np.inf)
+        for r, (x, y) in enumerate(xy.tolist()):
+            beam = covering_beam(x, y, self.angle_min, self.angle_increment, self.free.size)
+            if beam >= 0:
+                out[r] = float(self.free[beam]) - math.hypot(x, y)
+        return out
 
     def occupied(self) -> np.ndarray:
         """Sorted unique flat indices of the occupied cells."""
@@ -646,8 +649,8 @@ def history_motions(meta, order, pose):
 
 
 #: Cell offsets (row, column) read around a cell: itself, its 4- then its 8-neighbours.
-_SHIFT_I = np.array([0, 1, -1, 0, 0, 1, 1, -1, -1])
-_SHIFT_J = np.array([0, 0, 0, 1, -1, 1, -1, 1, -1])
+NEIGHBOURS_I = np.array([0, 1, -1, 0, 0, 1, 1, -1, -1])
+NEIGHBOURS_J = np.array([0, 0, 0, 1, -1, 1, -1, 1, -1])
 
 
 @jit.kernel
@@ -667,7 +670,7 @@ def lookup(stack, lazy, free, beam, reach, buffers, motions, ij, cells, resoluti
             p = mapped_cell(ij[r, 0], ij[r, 1], c, s, u0, v0, cells)
             for n in range(q):
                 out[k, r, n] = cell_value(stack, lazy, free, beam, reach, buffers[k],
-                                          p + _SHIFT_I[n] * m + _SHIFT_J[n])
+                                          p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n])
     return out
 
 

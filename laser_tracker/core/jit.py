@@ -125,6 +125,17 @@ def kernel(function: Callable) -> Callable:
     return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy')(function)
 
 
+def inline(function: Callable) -> Callable:
+    """A small helper of kernels, compiled into each kernel that calls it (numba's
+    ``inline='always'``): a call that passes arrays to a separately compiled function costs
+    a reference count update per array, which in a per-point loop is most of the time."""
+    numba = _configure()
+    if numba is None:
+        return kernel(function)
+    return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy',
+                      inline='always')(function)
+
+
 def compiled(what: str, call: Callable[[], object]) -> None:
     """Run ``call`` (a first kernel call with a small valid input), once per process and
     ``what``: compiles, or loads from the cache, before the first real input. Raises

@@ -46,7 +46,8 @@ from laser_tracker.core import jit
 from laser_tracker.core.jit import pairwise_sum
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import (FEATURE_NAMES, FEATURE_SET, Clusters,
-                                             SegmentConfig, segments_of)
+                                             SegmentConfig, _clusters, as_clusters,
+                                             kernel_arguments)
 from laser_tracker.errors import InputFileError
 
 log = logging.getLogger(__name__)
@@ -91,15 +92,23 @@ class LegClassifier:
     def recommended_threshold(self) -> float:
         return float(self.meta.get('threshold', 0.5))
 
+    @property
+    def arrays(self) -> tuple:
+        """The trees as :func:`_decision` reads them."""
+        return self.feature, self.threshold, self.value, self.bias
+
     def decision_function(self, features: np.ndarray) -> np.ndarray:
         """Raw scores (log-odds) of the rows of ``features`` (k, len(FEATURE_NAMES))."""
-        return _decision(np.ascontiguousarray(features, dtype=np.float64), self.feature,
-                         self.threshold, self.value, self.bias)
+        return _decision(np.ascontiguousarray(features, dtype=np.float64), *self.arrays)
 
     def predict_proba(self, features: np.ndarray) -> np.ndarray:
         """Leg probability of each row of ``features``."""
-        z = self.decision_function(features)
-        return 1.0 / (1.0 + np.exp(-np.clip(z, -50.0, 50.0)))
+        return probability(self.decision_function(features))
+
+
+def probability(z: np.ndarray) -> np.ndarray:
+    """The probability of raw scores ``z`` (numpy's exp, kept bit for bit)."""
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -50.0, 50.0)))
 
 
 @jit.kernel
@@ -118,6 +127,16 @@ def _decision(features, feature, threshold, value, bias):
             leaves[t] = value[t, node - inner]
         out[r] = bias + pairwise_sum(leaves, 0, trees)
     return out
+
+
+@jit.kernel
+def _classified(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_width,
+                max_range, feature, threshold, value, bias):
+    """The scan's segments (``segmentation._clusters``) and their raw scores, in one
+    call."""
+    clusters = _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points,
+                         max_width, max_range)
+    return clusters, _decision(clusters[3], feature, threshold, value, bias)
 
 
 def save_model(path: str | Path, classifier: LegClassifier) -> None:
@@ -313,9 +332,13 @@ class PersonDetector:
                         self.classifier.path)
 
     def classify(self, scan: Scan) -> tuple[Clusters, np.ndarray]:
-        """The scan's segments within ``max_range`` and their leg probabilities."""
-        clusters = segments_of(scan, self.segments, self.config.max_range)
-        return clusters, self.classifier.predict_proba(clusters.features)
+        """The scan's segments within ``max_range`` and their leg probabilities (one kernel
+        call)."""
+        s = self.segments
+        raw, z = _classified(*kernel_arguments(scan, s.jump_distance, s.min_points,
+                                               s.max_width, self.config.max_range),
+                             *self.classifier.arrays)
+        return as_clusters(raw), probability(z)
 
     def detect(self, scan: Scan) -> PersonDetections:
         c = self.config

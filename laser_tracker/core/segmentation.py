@@ -119,20 +119,31 @@ def segment(scan: Scan, jump_distance: float = 0.13, min_points: int = 3,
     """Clusters of ``scan`` with at least ``min_points`` (>= 3) points, at most ``max_width``
     metres between their ends and their centroid within ``max_range``, with their features:
     one kernel call."""
-    _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams)
-    xy, ends, n_points, features, clear, total = _clusters(
-        scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
-        abs(float(scan.angle_increment)), float(jump_distance), max(int(min_points), 3),
-        float(max_width), np.inf if max_range is None else float(max_range))
-    if xy.shape[0] == 0:
-        return Clusters.empty(total=total)
-    return Clusters(xy=xy, first=ends[:, 0], last=ends[:, 1], n_points=n_points,
-                    features=features, occluded=clear < 0.0, total=total)
+    return as_clusters(_clusters(*kernel_arguments(scan, jump_distance, min_points, max_width,
+                                                   max_range)))
 
 
 def segments_of(scan: Scan, config: SegmentConfig, max_range: float | None = None) -> Clusters:
     """:func:`segment` with the settings of ``config``."""
     return segment(scan, config.jump_distance, config.min_points, config.max_width, max_range)
+
+
+def kernel_arguments(scan: Scan, jump_distance: float, min_points: int, max_width: float,
+                     max_range: float | None) -> tuple:
+    """The arguments of :func:`_clusters` for :func:`segment`'s."""
+    _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams)
+    return (scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+            abs(float(scan.angle_increment)), float(jump_distance), max(int(min_points), 3),
+            float(max_width), np.inf if max_range is None else float(max_range))
+
+
+def as_clusters(raw: tuple) -> Clusters:
+    """:class:`Clusters` of :func:`_clusters`' result."""
+    xy, ends, n_points, features, clear, total = raw
+    if xy.shape[0] == 0:
+        return Clusters.empty(total=total)
+    return Clusters(xy=xy, first=ends[:, 0], last=ends[:, 1], n_points=n_points,
+                    features=features, occluded=clear < 0.0, total=total)
 
 
 # ------------------------------------------------------------------------------ kernels

@@ -40,9 +40,8 @@ import numpy as np
 from laser_tracker.core import jit
 from laser_tracker.core.blobs import BlobConfig, Blobs, segment
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
-                                           changed_with_history, difference_map, pose_quality,
-                                           pose_trusted, walked_in)
-from laser_tracker.core.geometry import transform_points
+                                           changed_with_history, difference_map,
+                                           people_in_odometry, pose_quality, pose_trusted)
 from laser_tracker.core.egomotion import (SOURCE_ICP, SOURCE_ODOMETRY, SOURCE_PARTIAL,
                                           EgoMotionConfig, EgoMotionEstimate,
                                           EgoMotionEstimator)
@@ -52,7 +51,8 @@ from laser_tracker.core.head import HeadCommand, HeadConfig, HeadPointer
 from laser_tracker.core.hypotheses import FrameResult, HypothesisConfig, HypothesisTracker
 from laser_tracker.core.kalman import KalmanConfig
 from laser_tracker.core.person_detector import (DetectorModelError, LegClassifier,
-                                                PersonDetector, PersonDetectorConfig)
+                                                PersonDetections, PersonDetector,
+                                                PersonDetectorConfig)
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig, segments_of
 from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
@@ -379,23 +379,15 @@ class Detector:
         b = det.blobs
         if self.person_detector is not None:
             people = self.person_detector.detect(scan)
-            b.persons = transform_points(pose, people.xy)
-            b.person_confidence = people.confidence
-            b.person_free, b.person_static = self._walked_in(people, pose, float(scan.stamp))
-            legs = people.legs
-            pair = legs[:, 1] >= 0
-            spread = np.full(people.count, np.nan)
-            if pair.any():
-                d = people.leg_xy[legs[pair, 0]] - people.leg_xy[legs[pair, 1]]
-                spread[pair] = np.hypot(d[:, 0], d[:, 1])
-            b.person_spread = spread
-            local = people.leg_xy
-            b.segment_leg = people.leg_probability
             det.persons = people
+            b.person_confidence = people.confidence
+            b.segment_leg = people.leg_probability
         else:
-            local = segments_of(scan, self.segment_config).xy
-            b.segment_leg = np.zeros(local.shape[0])
-        b.segments = transform_points(pose, local)
+            people = PersonDetections.empty()
+            people.leg_xy = segments_of(scan, self.segment_config).xy
+            b.segment_leg = np.zeros(people.leg_xy.shape[0])
+        b.persons, b.person_free, b.person_static, b.person_spread, b.segments = \
+            people_in_odometry(people, pose, float(scan.stamp), self.history, self.background)
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
 
@@ -404,26 +396,8 @@ class Detector:
         (within ``MOVER_RADIUS`` of a motion blob): people who keep passing the same spot (a
         corridor) do not make it static."""
         if self.background is not None:
-            self.background.add(self.history[0].points, stamp, pose, det.blobs.local(),
+            self.background.add(self.history[0].points, stamp, pose, det.blobs.xy,
                                 MOVER_RADIUS)
-
-    def _walked_in(self, people, pose: np.ndarray, stamp: float):
-        """Per person: (free, static): were the places of all its legs seen FREE in an
-        earlier grid and are they not static background (someone who walked in), and are all
-        of them static background (where something has long stood)?"""
-        n = people.count
-        legs = people.legs
-        used = np.unique(legs[legs >= 0])
-        if n == 0 or used.size == 0:
-            return np.zeros(n, bool), np.zeros(n, bool)
-        free, static = walked_in(people.leg_xy[used], pose, stamp, self.history,
-                                 self.background)
-
-        def per_person(leg_value, missing):
-            value = np.full(people.leg_xy.shape[0], missing)
-            value[used] = leg_value
-            return np.where(legs >= 0, value[np.maximum(legs, 0)], missing).all(axis=1)
-        return per_person(free, True), per_person(static, True)
 
     def _detect(self, scan: Scan, pose: np.ndarray, want_grids: bool,
                 quality: PoseQuality) -> Detection:
@@ -611,11 +585,12 @@ def _exercise_detection() -> None:
         pose.stamp = scan.stamp
         detector.update(scan, pose, want_grids=k == 2)
     frame = detector.history[0]
-    walked_in(frame.points[:2], pose.pose, pose.stamp, detector.history, detector.background)
     segment(np.unique(frame.flat), detector.builder.cells, detector.grid_config.resolution,
             pose.pose, pose.stamp, detector.blob_config, frame.points)
     one_leaf = LegClassifier(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 2)), 0.0)
-    PersonDetector(PersonDetectorConfig(), one_leaf).detect(scan)
+    people = PersonDetector(PersonDetectorConfig(), one_leaf).detect(scan)
+    people.legs = np.array([[0, -1]])
+    people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background)
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:
