@@ -10,8 +10,8 @@ scan in the odometry frame, stamped exactly as the scan.
 The node is convert -> ``core.stages.Detector`` -> convert; the stage owns the stream rules
 (time going backwards, duplicates, gaps, a restarted pose chain) and the pose gate.
 Parameters: ``grid.*``, ``difference.*``, ``blobs.*``, ``segments.*``, ``person_detector.*``
-(changeable at run time) and ``status_topic`` (read-only). A person-detector model that cannot be loaded is
-a warning: the motion method keeps running.
+(changeable at run time) and ``status_topic`` (read-only). A person-detector model that
+cannot be loaded is a warning: the motion method keeps running.
 """
 from __future__ import annotations
 
