@@ -301,15 +301,22 @@ def _blobs(changed, cells, resolution, points, settings):
         if settings[_MAX_CELLS]:
             keep &= n <= settings[_MAX_CELLS]
         kept = np.count_nonzero(keep)
-        if kept > settings[_MAX_BLOBS]:                 # the largest are kept
-            order = np.argsort(-n, kind='mergesort')
-            left = int(settings[_MAX_BLOBS])
-            for k in order:
-                if keep[k]:
-                    keep[k] = left > 0
-                    left -= 1
+        if kept > settings[_MAX_BLOBS]:      # the largest are kept (of equal ones the first)
+            largest = keep.copy()
+            for i in range(count):
+                if keep[i]:
+                    rank = 0
+                    for j in range(count):
+                        rank += keep[j] and (n[j] > n[i] or (n[j] == n[i] and j < i))
+                    largest[i] = rank < settings[_MAX_BLOBS]
+            keep = largest
             dropped = kept - int(settings[_MAX_BLOBS])
-        local, n, extent = local[keep], n[keep], extent[keep]
+        m = 0
+        for i in range(count):
+            if keep[i]:
+                local[m], n[m], extent[m] = local[i], n[i], extent[i]
+                m += 1
+        local, n, extent = local[:m], n[:m], extent[:m]
     if points.shape[0] == 0 or local.shape[0] == 0:
         return local, n, extent, np.zeros((8, 0)), dropped, count
     ids, starts = _surface_ids(points, settings[_GAP])
@@ -322,7 +329,7 @@ def _blobs(changed, cells, resolution, points, settings):
             sid[i] = _nearest_surface(points, ids, local[i, 0], local[i, 1], resolution)
             if sid[i] < 0:
                 sid[i] = -1 - i
-        groups = np.unique(sid)
+        groups = jit.unique(sid)
         if groups.size < b:
             g = groups.size
             total = np.zeros(g)

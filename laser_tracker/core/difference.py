@@ -333,7 +333,7 @@ def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta,
                 continue
         changed[n_changed] = frame_flat[r]
         n_changed += 1
-    return np.unique(changed[:n_changed])
+    return jit.unique(changed[:n_changed])
 
 
 @jit.kernel

@@ -162,6 +162,19 @@ def compiled(what: str, call: Callable[[], object]) -> None:
                            f'llvmlite') from exc
 
 
+@kernel
+def unique(values):
+    """``np.unique`` of a 1-D array (sorted, each value once); numba compiles its own
+    np.unique about ten times slower than a sort."""
+    out = np.sort(values)
+    n = 0
+    for i in range(out.size):
+        if i == 0 or out[i] != out[n - 1]:
+            out[n] = out[i]
+            n += 1
+    return out[:n]
+
+
 # ------------------------------------------------------------------ numpy's summation orders
 #
 # A kernel that replaces numpy code and must give the same numbers bit for bit (so that
