@@ -1,7 +1,10 @@
-"""Split one scan into clusters by jump distance and describe each cluster's shape.
+"""Split one scan into segments by jump distance and describe each segment's shape.
 
-A cluster is a run of consecutive valid end points (beam order, beams without a return
-skipped) in which each point lies within ``jump_distance`` of the previous one. The features
+A segment (a cluster) is a run of consecutive valid end points (beam order, beams without a
+return skipped) in which each point lies within ``jump_distance`` of the previous one. The
+scan's segments (:class:`SegmentConfig`, ``segments.*``) are what the person detector
+classifies and, when it does not run, the compact segments that keep a stopped object's
+track alive: one segmentation, one kernel call per scan (:func:`segment`). The features
 are meant to classify a cluster as a leg on scanners the classifier has never seen (0.25 to
 1 degree between beams), so none of them is a raw point count: every feature is a length, an
 angle or a ratio of the cluster's shape, or a count normalised by what the beam spacing at

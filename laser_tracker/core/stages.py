@@ -362,10 +362,10 @@ class Detector:
             self.reset()
         self.rules.accept(scan.stamp)
         scan = _without_body(scan, pose.body)
-        det = self._detect(scan, np.asarray(pose.pose, dtype=float), want_grids,
-                           pose.quality)
-        self._people_and_segments(scan, np.asarray(pose.pose, dtype=float), det)
-        self._add_to_background(np.asarray(pose.pose, dtype=float), float(scan.stamp), det)
+        at = np.asarray(pose.pose, dtype=float)
+        det = self._detect(scan, at, want_grids, pose.quality)
+        self._people_and_segments(scan, at, det)
+        self._add_to_background(at, float(scan.stamp), det)
         det.blobs.frame_id = pose.frame_id or self.frame_id
         det.blobs.stamp_ns = scan.stamp_ns
         det.blobs.restarted = bool(pose.quality.restarted)
@@ -382,7 +382,7 @@ class Detector:
             det.persons = people
             b.person_confidence = people.confidence
             b.segment_leg = people.leg_probability
-        else:
+        else:                                       # no people: the segments alone
             people = PersonDetections.empty()
             people.leg_xy = segments_of(scan, self.segment_config).xy
             b.segment_leg = np.zeros(people.leg_xy.shape[0])
