@@ -10,7 +10,7 @@ import pytest
 
 from laser_tracker.core.difference import DifferenceConfig, changed_cells, difference_map
 from laser_tracker.core.grid import (FREE, OCCUPIED, PAD, UNKNOWN, GridBuilder, GridConfig,
-                                     build_grid, lookup_previous, transform_grid)
+                                     build_grid, lookup_grid, transform_grid)
 from laser_tracker.core.scan import Scan
 
 RES = 0.1
@@ -66,10 +66,9 @@ def test_free_ranges_match_scan_semantics():
     range_min free nothing, inf / >= range_max free up to no_return_free."""
     ranges = np.array([np.nan, -1.0, 0.01, 1.0, np.inf, 8.0, 2.5] * 20 + [1.0])
     scan = scan_180(ranges)
-    builder = GridBuilder(CFG)
-    builder.build(scan)
+    frame = GridBuilder(CFG).build(scan)
     expected = scan.free_ranges(CFG.no_return_free)
-    assert np.allclose(builder._ext[:ranges.size], expected.astype(np.float32))
+    assert np.array_equal(frame.free, expected.astype(np.float32))
 
 
 def test_free_erosion_bounds_a_beam_by_its_neighbours_on_one_surface_only():
@@ -140,10 +139,18 @@ def test_sparse_lookup_agrees_with_affine_transform(motion):
     previous = rng.integers(0, 3, size=(N, N)).astype(np.uint8)
     whole = transform_grid(previous, motion, RES)
     flat = rng.choice(N * N, 400, replace=False)
-    looked = lookup_previous(previous, motion, RES, flat)[:, 0]
+    ij = np.column_stack(np.divmod(flat, N)).astype(float)
+    padded = np.pad(previous, PAD, constant_values=UNKNOWN)
+    looked = lookup_grid(padded, motion, RES, ij)[:, 0]
     assert np.array_equal(looked, whole.reshape(-1)[flat])
-    around = lookup_previous(previous, motion, RES, flat, neighbourhood=2)
-    assert around.shape == (400, 9)
+    around = lookup_grid(padded, motion, RES, ij, neighbourhood=2)
+    assert np.array_equal(around[:, 0], looked)
+    # The neighbours: the cells next to the mapped cell in the previous grid.
+    if motion == (0.0, 0.0, 0.0):
+        for (i, j), row in zip(ij.astype(int), around):
+            assert row.tolist() == [padded[i + PAD + di, j + PAD + dj]
+                                    for di, dj in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1),
+                                                   (1, 1), (1, -1), (-1, 1), (-1, -1))]
 
 
 def test_difference_map_equation_1():

@@ -62,9 +62,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.config import param
+from laser_tracker.core import jit
 from laser_tracker.core.egomotion import SOURCE_ICP, SOURCE_INIT, SOURCE_ODOMETRY, \
     SOURCE_PARTIAL
-from laser_tracker.core.grid import FREE, OCCUPIED, UNKNOWN, lookup_padded, lookup_stack
+from laser_tracker.core.grid import (FREE, NEIGHBOURS_I, NEIGHBOURS_J, OCCUPIED, PAD, UNKNOWN,
+                                     GridHistory, covering_beam, history_motions, index_map,
+                                     lookup, lookup_grid, mapped_cell)
 
 #: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` and
 #: ``constant_velocity`` (coasting: no match accepted) and ``none`` are not.
@@ -205,25 +208,266 @@ def difference_map(grid: np.ndarray, previous_in_current: np.ndarray) -> np.ndar
     return (grid == OCCUPIED) & (previous_in_current == FREE)
 
 
-def relative_motion(a, b) -> tuple[float, float, float]:
-    """Pose ``b`` in the frame of pose ``a`` (SE(2) ``inverse(a) (+) b``), in plain floats:
-    ``geometry.between`` for one pair without numpy's per-call cost."""
-    ax, ay, at = (float(v) for v in a)
-    bx, by, bt = (float(v) for v in b)
-    c, s = math.cos(at), math.sin(at)
-    dx, dy = bx - ax, by - ay
-    return (c * dx + s * dy, -s * dx + c * dy,
-            (bt - at + math.pi) % (2.0 * math.pi) - math.pi)
+# ------------------------------------------------------------------------------ kernels
+#
+# Settings of the difference kernel (a float array: one argument instead of many).
+_WINDOW, _MEMORY, _NEIGHBOURHOOD, _MOTION_DEPTH, _RES = range(5)
+# Settings of the static background: 1 / resolution, static_time, static_occupied, bits.
+_INV, _TAU, _THRESHOLD, _BITS = range(4)
+@jit.inline
+def _displaced(i, j, x, y, theta, cells, resolution, motion_depth):
+    """Current cell ``(i, j)`` in the frame of an earlier scan (``x, y, theta``: the current
+    scanner pose there) and how far beyond it that scan's beam must have freed space: at
+    least ``motion_depth`` times the displacement the motion causes at the cell."""
+    c, s = math.cos(theta), math.sin(theta)
+    px = (i + (0.5 - cells / 2.0)) * resolution
+    py = (j + (0.5 - cells / 2.0)) * resolution
+    qx = c * px - s * py + x
+    qy = s * px + c * py + y
+    return qx, qy, motion_depth * (math.hypot(x, y) + math.hypot(qx, qy) * abs(theta))
 
 
-def not_occupied_before(ij: np.ndarray, stack: np.ndarray, indices, poses, pose,
-                        resolution: float) -> np.ndarray:
-    """Mask over the rows of ``ij`` (cells of the current grid at scanner pose ``pose``): True
-    where none of the earlier grids ``stack[indices[k]]`` (padded; scanner poses ``poses[k]``)
-    had the cell OCCUPIED, each brought into the current frame by the relative motion."""
-    motions = [relative_motion(p, pose) for p in poses]
-    before = lookup_stack(stack, indices, motions, resolution, ij)
-    return ~(before == OCCUPIED).any(axis=0)
+@jit.inline
+def _earlier(stack, lazy, free, beam, reach, meta, buffer, maps, k, i, j, cells, resolution,
+             around, motion_depth):
+    """The value of the earlier grid in ``buffer`` (``maps[k]``: its index map, then the
+    current scanner pose in its frame) at current cell ``(i, j)``: with ``around`` 5 or 9
+    (``free_neighbourhood``) FREE only when the mapped cell's 4- or 8-neighbours are FREE
+    too, and with ``motion_depth`` only when the beam that freed it went on far enough
+    beyond (:func:`_displaced`); else a FREE cell reads UNKNOWN. Reads the arrays
+    directly: a helper that passes them on costs reference counting per cell."""
+    m = cells + 2 * PAD
+    p = mapped_cell(i, j, maps[k, 0], maps[k, 1], maps[k, 2], maps[k, 3], cells)
+    v = stack[buffer, p]
+    if v == UNKNOWN and lazy[buffer] and reach[p] < free[buffer, beam[p]]:
+        v = FREE
+    if v != FREE:
+        return v
+    for n in range(1, around):
+        q = p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
+        if not (stack[buffer, q] == FREE or (stack[buffer, q] == UNKNOWN and lazy[buffer]
+                                             and reach[q] < free[buffer, beam[q]])):
+            return UNKNOWN
+    if motion_depth > 0.0:
+        qx, qy, need = _displaced(i, j, maps[k, 4], maps[k, 5], maps[k, 6], cells,
+                                  resolution, motion_depth)
+        b = covering_beam(qx, qy, meta[buffer, 4], meta[buffer, 5], meta[buffer, 6])
+        if not (b >= 0 and np.float64(free[buffer, b]) - math.hypot(qx, qy) >= need):
+            return UNKNOWN
+    return FREE
+
+
+@jit.kernel
+def _background_count(x, y, key, count, last, settings, stamp):
+    """The largest decayed occupancy (s) of the background among the cells within one cell
+    of point ``(x, y)`` (odometry frame)."""
+    bits = int(settings[_BITS])
+    mask = (1 << bits) - 1
+    i0 = np.int64(math.floor(x * settings[_INV]))
+    j0 = np.int64(math.floor(y * settings[_INV]))
+    best = 0.0
+    for i in range(i0 - 1, i0 + 2):
+        for j in range(j0 - 1, j0 + 2):
+            slot = ((i & mask) << bits) | (j & mask)
+            if key[slot] == (i << 32) + j:
+                best = max(best, count[slot] * math.exp((last[slot] - stamp) / settings[_TAU]))
+    return best
+
+
+@jit.kernel
+def _to_world(pose, x, y):
+    """Point ``(x, y)`` of the scanner frame at ``pose`` in the odometry frame
+    (``geometry.transform_points``)."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return c * x - s * y + pose[0], s * x + c * y + pose[1]
+
+
+@jit.kernel
+def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta, order, pose,
+             stamp, settings, cells, key, count, last, background):
+    """Equation 1 with memory and free-space evidence at the cells occupied now: the sorted
+    unique flat indices of the changed cells (see :func:`changed_with_history`), without
+    those on static background (``background``: its settings, empty when it is off)."""
+    n_grids = order.size
+    n_free = 1
+    for k in range(1, n_grids):
+        if stamp - meta[order[k], 3] <= settings[_WINDOW]:
+            n_free += 1
+    n_occ = min(n_grids, int(settings[_MEMORY]) + 1)
+    depth = max(n_free, n_occ)
+    res = settings[_RES]
+    motion_depth = settings[_MOTION_DEPTH]
+    motions = history_motions(meta, order[:depth], pose)
+    maps = np.empty((depth, 7))                 # index map, then the motion
+    for k in range(depth):
+        maps[k, 0], maps[k, 1], maps[k, 2], maps[k, 3] = index_map(
+            motions[k, 0], motions[k, 1], motions[k, 2], cells, res)
+        maps[k, 4:] = motions[k]
+    neighbourhood = int(settings[_NEIGHBOURHOOD])
+    around = 1 if neighbourhood <= 0 else (5 if neighbourhood == 1 else 9)
+    changed = np.zeros(frame_ij.shape[0], np.intp)
+    n_changed = 0
+    cell_changed = False
+    for r in range(frame_ij.shape[0]):
+        if r == 0 or frame_flat[r] != frame_flat[r - 1]:   # a new cell (beams share cells)
+            # OCCUPIED in none of the first n_occ earlier grids, seen FREE (deep enough) in
+            # one of the first n_free; each read only when needed (most cells occupied now
+            # were occupied in the previous grid: one read).
+            cell_changed = False
+            for k in range(depth):
+                v = _earlier(stack, lazy, free, beam, reach, meta, order[k], maps, k,
+                             frame_ij[r, 0], frame_ij[r, 1], cells, res,
+                             around if k == 0 else 1, motion_depth if k < n_free else 0.0)
+                if k < n_occ and v == OCCUPIED:
+                    cell_changed = False
+                    break
+                cell_changed |= k < n_free and v == FREE
+                if cell_changed and k >= n_occ - 1:
+                    break
+        if not cell_changed:
+            continue
+        if background.size:
+            x, y = _to_world(pose, points[r, 0], points[r, 1])
+            if _background_count(x, y, key, count, last, background, stamp) \
+                    >= background[_THRESHOLD]:
+                continue
+        changed[n_changed] = frame_flat[r]
+        n_changed += 1
+    return jit.unique(changed[:n_changed])
+
+
+@jit.kernel
+def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, meta, order,
+            cells, resolution, key, count, last, background):
+    """People (``persons`` at their ``legs``, rows of ``leg_xy``, -1: none; the scanner frame
+    at ``pose``) in the odometry frame with, per person: were the places of all its legs seen
+    FREE in one of the grids ``order`` and are they not static background (someone who
+    walked in), are all of them static background, and the distance between its two legs
+    (NaN for one); and ``leg_xy`` in the odometry frame."""
+    n, k = persons.shape[0], leg_xy.shape[0]
+    world = np.empty((n, 2))
+    for r in range(n):
+        world[r, 0], world[r, 1] = _to_world(pose, persons[r, 0], persons[r, 1])
+    legs_world = np.empty((k, 2))
+    for r in range(k):
+        legs_world[r, 0], legs_world[r, 1] = _to_world(pose, leg_xy[r, 0], leg_xy[r, 1])
+    spread = np.full(n, np.nan)
+    walked = np.ones(n, np.bool_)
+    standing = np.ones(n, np.bool_)
+    motions = history_motions(meta, order, pose)
+    ij = np.empty((1, 2))
+    for r in range(n):
+        if legs[r, 1] >= 0:
+            dx = leg_xy[legs[r, 0], 0] - leg_xy[legs[r, 1], 0]
+            dy = leg_xy[legs[r, 0], 1] - leg_xy[legs[r, 1], 1]
+            spread[r] = math.hypot(dx, dy)
+        for leg in legs[r]:
+            if leg < 0:
+                continue
+            x, y = legs_world[leg, 0], legs_world[leg, 1]
+            static = background.size > 0 and _background_count(
+                x, y, key, count, last, background, stamp) >= background[_THRESHOLD]
+            inside = True
+            for a in range(2):
+                v = math.floor(leg_xy[leg, a] / resolution + cells / 2.0)
+                inside &= 0 <= v < cells
+                ij[0, a] = min(max(v, 0.0), cells - 1.0)
+            seen_free = False
+            if inside and not static and order.size:
+                values = lookup(stack, lazy, free, beam, reach, order, motions, ij, cells,
+                                resolution, 0)
+                for q in range(order.size):
+                    seen_free |= values[q, 0, 0] == FREE
+            walked[r] &= seen_free
+            standing[r] &= static
+    return world, walked, standing, spread, legs_world
+
+
+@jit.kernel
+def _background_counts(xy, key, count, last, settings, stamp):
+    out = np.empty(xy.shape[0])
+    for r in range(xy.shape[0]):
+        out[r] = _background_count(xy[r, 0], xy[r, 1], key, count, last, settings, stamp)
+    return out
+
+
+@jit.kernel
+def _background_add(points, pose, movers, radius, key, count, last, settings, stamp, step):
+    """The end points ``points`` (scanner frame at ``pose``) farther than ``radius`` from
+    every mover (``movers``, odometry frame) hit their background cells, each cell once."""
+    bits = int(settings[_BITS])
+    mask = (1 << bits) - 1
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    local = np.empty((movers.shape[0], 2))             # the movers in the scanner frame
+    for b in range(movers.shape[0]):
+        dx, dy = movers[b, 0] - pose[0], movers[b, 1] - pose[1]
+        local[b, 0], local[b, 1] = c * dx + s * dy, -s * dx + c * dy
+    n = points.shape[0]
+    slots = np.empty(n, np.int64)
+    keys = np.empty(n, np.int64)
+    values = np.empty(n)
+    k = 0
+    for r in range(n):
+        near = False
+        for b in range(local.shape[0]):
+            dx, dy = points[r, 0] - local[b, 0], points[r, 1] - local[b, 1]
+            near |= math.sqrt(dx * dx + dy * dy) <= radius
+        if near:
+            continue
+        x, y = _to_world(pose, points[r, 0], points[r, 1])
+        i = np.int64(math.floor(x * settings[_INV]))
+        j = np.int64(math.floor(y * settings[_INV]))
+        slot = ((i & mask) << bits) | (j & mask)
+        keys[k], slots[k] = (i << 32) + j, slot
+        # Several points of one cell write the same value: each cell counts once.
+        values[k] = (count[slot] * math.exp((last[slot] - stamp) / settings[_TAU])
+                     if key[slot] == keys[k] else 0.0) + step
+        k += 1
+    for r in range(k):
+        key[slots[r]] = keys[r]
+        count[slots[r]] = values[r]
+        last[slots[r]] = stamp
+
+
+def changed_with_history(frame, stamp: float, pose, history: GridHistory,
+                         config: DifferenceConfig,
+                         background: StaticBackground | None = None) -> np.ndarray:
+    """Equation 1 with memory and free-space evidence at the cells occupied now: the sorted
+    unique flat indices of the changed cells, in one kernel call.
+
+    ``frame``, ``stamp``, ``pose``: the current scan's grid, stamp and scanner pose;
+    ``history``: the earlier grids with their poses and stamps. A cell is changed when it
+    was seen FREE (and, with ``motion_depth``, by a beam that went on far enough beyond it,
+    see :func:`deep_free`) in one of the grids of the last ``free_window`` seconds (the
+    previous grid at least; with ``free_neighbourhood``, the previous grid's neighbours too),
+    was OCCUPIED in none of the previous grid and the ``memory`` grids before it, and (with
+    ``background``) is not static background. With ``free_window`` 0 and ``memory`` 0 this
+    is Equation 1 exactly.
+    """
+    if frame.ij.shape[0] == 0 or not len(history):
+        return frame.flat[:0]
+    bg = background.arrays if background is not None else _NO_BACKGROUND
+    return _changed(frame.ij, frame.flat, frame.points, *history.builder.arrays[:5],
+                    history.builder.meta, history.order, np.asarray(pose, dtype=float),
+                    float(stamp), _settings(config, history.builder.config.resolution),
+                    history.builder.cells, *bg)
+
+
+def people_in_odometry(people, pose, stamp: float, history: GridHistory,
+                       background: StaticBackground | None) -> tuple:
+    """``people`` (``person_detector.PersonDetections`` of the scan at ``pose``, whose grid
+    is ``history[0]``) in the odometry frame: (positions, walked in, on static background,
+    leg spread) per person (see :func:`_people`) and the positions of their clusters."""
+    b = history.builder
+    bg = background.arrays if background is not None else _NO_BACKGROUND
+    return _people(people.xy, people.legs, np.ascontiguousarray(people.leg_xy, dtype=float),
+                   np.asarray(pose, dtype=float), float(stamp), *b.arrays[:5], b.meta,
+                   history.order[1:], b.cells, float(b.config.resolution), *bg)
+
+
+def _settings(config: DifferenceConfig, resolution: float) -> np.ndarray:
+    return np.array([config.free_window, config.memory, config.free_neighbourhood,
+                     config.motion_depth, resolution])
 
 
 def deep_free(ij: np.ndarray, previous, motion, resolution: float, cells: int,
@@ -232,71 +476,26 @@ def deep_free(ij: np.ndarray, previous, motion, resolution: float, cells: int,
     scan covering the cell continued at least ``motion_depth`` times the motion-induced
     displacement at the cell beyond it (``previous``: the previous ``GridFrame``; ``motion``:
     current scanner pose in the previous scanner frame)."""
-    x, y, theta = (float(v) for v in motion)
-    c, s = math.cos(theta), math.sin(theta)
-    p = (ij + (0.5 - cells / 2.0)) * resolution
-    prev = np.empty_like(p)
-    prev[:, 0] = c * p[:, 0] - s * p[:, 1] + x
-    prev[:, 1] = s * p[:, 0] + c * p[:, 1] + y
-    need = config.motion_depth * (math.hypot(x, y)
-                                  + np.hypot(prev[:, 0], prev[:, 1]) * abs(theta))
-    return previous.free_depth(prev) >= need
+    b = previous.builder
+    meta = b.meta[previous.index]
+    out = np.zeros(ij.shape[0], dtype=bool)
+    for r, (i, j) in enumerate(ij.tolist()):
+        qx, qy, need = _displaced(i, j, *(float(v) for v in motion), cells, resolution,
+                                  config.motion_depth)
+        beam = covering_beam(qx, qy, meta[4], meta[5], int(meta[6]))
+        out[r] = beam >= 0 and float(b.free[previous.index, beam]) - math.hypot(qx, qy) >= need
+    return out
 
 
 def changed_cells(ij: np.ndarray, previous_padded: np.ndarray, motion, resolution: float,
                   config: DifferenceConfig) -> np.ndarray:
-    """Equation 1 evaluated at the occupied cells only: a boolean mask over the rows of ``ij``.
-
-    ``ij``: cell indices (k, 2) of the cells occupied now (one row per end point, repeats
-    allowed); ``previous_padded``: the previous grid in its own frame with its UNKNOWN border
-    (``GridFrame.padded``); ``motion``: current scanner pose in the previous scanner frame.
-    """
-    if ij.shape[0] == 0:
-        return np.zeros(0, dtype=bool)
+    """Equation 1 alone at the cells ``ij`` (k, 2) occupied now: a boolean mask over them.
+    ``previous_padded``: the previous grid in its own frame with its UNKNOWN border;
+    ``motion``: the current scanner pose in the previous scanner frame. With
+    ``free_neighbourhood`` the previous cell's neighbours must have been FREE too."""
     k = config.free_neighbourhood
-    before = lookup_padded(previous_padded, motion, resolution, ij, neighbourhood=k)
-    if k == 0:
-        return before[:, 0] == FREE
+    before = lookup_grid(previous_padded, motion, resolution, ij, k)
     return (before == FREE).all(axis=1)
-
-
-def changed_with_history(frame, stamp: float, history, pose, stack, resolution: float,
-                         cells: int, config: DifferenceConfig) -> np.ndarray:
-    """Equation 1 with memory and free-space evidence, at the cells occupied now: a boolean
-    mask over the rows of ``frame.ij``.
-
-    ``frame``, ``stamp``, ``pose``: the current scan's grid, stamp and scanner pose;
-    ``history``: earlier ``(GridFrame, scanner pose, stamp)``, newest (the previous scan) first;
-    ``stack``: the builder's grid buffers they live in. A cell is changed when it was seen
-    FREE (and, with ``motion_depth``, by a beam that went on far enough beyond it) in one of
-    the grids of the last ``free_window`` seconds (the previous grid at least), and was
-    OCCUPIED in none of the previous grid and the ``memory`` grids before it. With
-    ``free_window`` 0 and ``memory`` 0 this is Equation 1 exactly.
-    """
-    ij = frame.ij
-    if ij.shape[0] == 0 or not history:
-        return np.zeros(ij.shape[0], dtype=bool)
-    n_free = 1 + sum(1 for h in history[1:] if stamp - h[2] <= config.free_window)
-    n_occ = min(len(history), config.memory + 1)
-    depth = max(n_free, n_occ)
-    motions = [relative_motion(h[1], pose) for h in history[:depth]]
-    values = lookup_stack(stack, [h[0].index for h in history[:depth]], motions, resolution,
-                          ij)
-    if config.free_neighbourhood:
-        before = lookup_padded(stack[history[0][0].index], motions[0], resolution, ij,
-                               neighbourhood=config.free_neighbourhood)
-        all_free = (before == FREE).all(axis=1)
-        values[0] = np.where(all_free, FREE, np.where(values[0] == FREE, UNKNOWN, values[0]))
-    free = values[:n_free] == FREE
-    if config.motion_depth > 0:
-        for j in range(n_free):
-            rows = np.flatnonzero(free[j])
-            if rows.size:
-                free[j, rows] = deep_free(ij[rows], history[j][0], motions[j], resolution,
-                                          cells, config)
-    changed = free.any(axis=0)
-    changed &= ~(values[:n_occ] == OCCUPIED).any(axis=0)
-    return changed
 
 
 class StaticBackground:
@@ -307,62 +506,48 @@ class StaticBackground:
     anywhere without scrolling and a slot reused far away reads as empty. Each slot keeps the
     time it has been seen occupied, decayed exponentially with time constant ``static_time``,
     and the time of its last hit (decay is applied lazily when a slot is read or hit). Per
-    scan only the cells of the scan's end points are touched.
+    scan only the cells of the scan's end points are touched (the kernels of the difference
+    and the detection stage read and write it through :attr:`arrays`).
     """
 
     def __init__(self, resolution: float, config: DifferenceConfig, size: int = 512):
         self.resolution = float(resolution)
-        self.tau = float(config.static_time)
-        self.threshold = float(config.static_occupied)
         self.max_step = float(config.static_max_step)
         self.previous: float | None = None
-        self.bits = max(1, int(size - 1).bit_length())      # size: a power of two
-        self.mask = (1 << self.bits) - 1
-        n = 1 << (2 * self.bits)
+        bits = max(1, int(size - 1).bit_length())      # size: a power of two
+        n = 1 << (2 * bits)
         self.key = np.full(n, np.iinfo(np.int64).min, np.int64)
         self.count = np.zeros(n, np.float64)
         self.last = np.zeros(n, np.float64)
-        r = np.arange(-1, 2)
-        self._around = np.stack(np.meshgrid(r, r, indexing='ij'), axis=-1).reshape(-1, 2)
+        self.settings = np.array([1.0 / self.resolution, config.static_time,
+                                  config.static_occupied, bits])
 
-    def _slots(self, ij: np.ndarray):
-        """Key and slot of integer cells ``ij`` (..., 2)."""
-        key = (ij[..., 0] << 32) + ij[..., 1]
-        slot = ((ij[..., 0] & self.mask) << self.bits) | (ij[..., 1] & self.mask)
-        return key, slot
+    @property
+    def arrays(self) -> tuple:
+        return self.key, self.count, self.last, self.settings
 
     def counts(self, xy: np.ndarray, stamp: float) -> np.ndarray:
         """The largest decayed occupancy (s) among the cells within one cell of each point
         ``xy`` (k, 2; odometry frame)."""
-        if xy.shape[0] == 0:
-            return np.zeros(0)
-        ij = np.floor(xy * (1.0 / self.resolution)).astype(np.int64)
-        key, slot = self._slots(ij[:, None, :] + self._around[None])
-        value = np.zeros(key.shape)
-        mine = np.flatnonzero(self.key[slot] == key)
-        if mine.size:
-            s = slot.ravel()[mine]
-            value.ravel()[mine] = self.count[s] * np.exp((self.last[s] - stamp) / self.tau)
-        return value.max(axis=1)
+        return _background_counts(np.asarray(xy, dtype=float), *self.arrays, float(stamp))
 
     def static(self, xy: np.ndarray, stamp: float) -> np.ndarray:
         """Mask: points on static structure (see the class doc)."""
-        return self.counts(xy, stamp) >= self.threshold
+        return self.counts(xy, stamp) >= self.settings[_THRESHOLD]
 
-    def add(self, xy: np.ndarray, stamp: float) -> None:
-        """One scan's end points (odometry frame) hit their cells, each cell once, adding the
-        time since the previous scan (at most ``max_step``)."""
+    def add(self, xy: np.ndarray, stamp: float, pose=(0.0, 0.0, 0.0), movers=None,
+            radius: float = 0.0) -> None:
+        """One scan's end points hit their cells, each cell once, adding the time since the
+        previous scan (at most ``max_step``). ``xy``: in the frame of ``pose`` (default the
+        odometry frame); points within ``radius`` of one of ``movers`` (odometry frame) are
+        left out."""
         step = 0.0 if self.previous is None else \
             min(max(stamp - self.previous, 0.0), self.max_step)
         self.previous = stamp
-        if xy.shape[0] == 0:
-            return
-        ij = np.floor(xy * (1.0 / self.resolution)).astype(np.int64)
-        key, slot = self._slots(ij)
-        # Several points of one cell write the same value: each cell counts once.
-        decayed = np.where(self.key[slot] == key,
-                           self.count[slot] * np.exp((self.last[slot] - stamp) / self.tau),
-                           0.0)
-        self.key[slot] = key
-        self.count[slot] = decayed + step
-        self.last[slot] = stamp
+        movers = _NO_POINTS if movers is None else movers
+        _background_add(np.asarray(xy, dtype=float), np.asarray(pose, dtype=float), movers,
+                        float(radius), *self.arrays, float(stamp), step)
+
+
+_NO_POINTS = np.zeros((0, 2))
+_NO_BACKGROUND = (np.zeros(1, np.int64), np.zeros(1), np.zeros(1), np.zeros(0))

@@ -12,25 +12,33 @@ Every cell holds one of three values (METHOD.md Sec. 2, "our reading" of Fig. 5)
 * ``UNKNOWN``: not observed (behind an obstacle, outside the field of view or beyond the
   distance a beam freed).
 
-Ray casting, vectorised. Per (beam geometry, grid geometry) a :class:`RayTable` is computed
-once and cached, the way laser_geometry caches cos/sin per scan geometry: for every cell the
-beam whose direction passes nearest the cell centre and the range at which that beam reaches
-the centre (plus the margin). A beam thus covers the wedge of cells between it and its
+Ray casting, compiled and lazy. Per (beam geometry, grid geometry) a :class:`RayTable` is
+computed once and cached, the way laser_geometry caches cos/sin per scan geometry: for every
+cell the beam whose direction passes nearest the cell centre and the range at which that beam
+reaches the centre (plus the margin). A beam thus covers the wedge of cells between it and its
 neighbours (its share of the field of view); at ranges where beams are further apart than a
-cell this leaves no unobserved stripes between beams. Per scan, casting all rays is then one
-gather and one comparison over the cells: ``FREE where reach[cell] < free_range[beam[cell]]``
-(``Scan.free_ranges``: a return frees space up to the hit, a no-return reading up to
-``no_return_free``, NaN nothing), after which the end points are marked ``OCCUPIED``.
+cell this leaves no unobserved stripes between beams. A cell is then ``FREE`` exactly when
+``reach[cell] < free_range[beam[cell]]`` (``Scan.free_ranges``: a return frees space up to
+the hit, a no-return reading up to ``no_return_free``, NaN nothing) and it is not
+``OCCUPIED`` (an end point lies in it).
+
+Per scan one kernel call (:meth:`GridBuilder.build`) computes the valid beams, the free range
+of every beam (with ``no_return_bounds`` and ``free_erosion``), the end points and their
+cells, and marks those cells ``OCCUPIED`` in the scan's buffer: nothing else of the grid is
+written. Only a few hundred cells of a grid are ever read (the cells occupied now, looked up
+in the earlier grids), so a cell's FREE / UNKNOWN value is computed when it is read
+(:func:`cell_value`) from the ray table and the grid's free ranges. The whole grid is
+rendered on request only (:attr:`GridFrame.grid`, for figures and recordings), and for the
+grids still held when the beam geometry changes (their ray table is about to be replaced).
 
 The previous grid is brought into the current scanner frame with the ego-motion estimate by
 :func:`transform_grid` (``scipy.ndimage.affine_transform``, order 0 = nearest cell, cells that
-come from outside the previous grid are ``UNKNOWN``). The difference map only needs the
-previous grid at the cells occupied now, so the per-scan path uses :func:`lookup_padded` (and
-:func:`lookup_stack` for several earlier grids at once), the same nearest-cell mapping
-evaluated at those cells only (a few hundred instead of the whole grid); the tests check that
-both agree. Grids live in buffers with a ``PAD``-cell UNKNOWN border that a
-:class:`GridBuilder` reuses scan after scan (no per-scan allocation of grids): cells that map
-outside read the border, so lookups need no bounds checks.
+come from outside the previous grid are ``UNKNOWN``), for figures. The difference map only
+needs the earlier grids at the cells occupied now: the kernels evaluate the same
+nearest-cell mapping at those cells only (:func:`mapped_cell`); the tests check that both
+agree. Grids live in buffers with a ``PAD``-cell UNKNOWN border that a :class:`GridBuilder`
+reuses scan after scan (no per-scan allocation of grids): cells that map outside read the
+border, so lookups need no bounds checks.
 
 Size: the default 16 m x 16 m (160 x 160 cells) covers the SICK's 8 m mode in every direction;
 measured on the bundled recordings, 12 m loses people at the far end of the corridor
@@ -39,6 +47,7 @@ measured on the bundled recordings, 12 m loses people at the far end of the corr
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -46,6 +55,7 @@ import numpy as np
 from scipy import ndimage
 
 from laser_tracker.config import param
+from laser_tracker.core import jit
 from laser_tracker.core.scan import Scan, beam_table
 
 UNKNOWN = np.uint8(0)
@@ -163,166 +173,10 @@ def cell_centres(cells: int, resolution: float, flat: np.ndarray) -> np.ndarray:
     return np.column_stack(((ix + 0.5 - half) * resolution, (iy + 0.5 - half) * resolution))
 
 
-@dataclass
-class GridFrame:
-    """One scan's grid and what the later stages need from it (valid for ``keep - 1`` more
-    builds of its :class:`GridBuilder`: its buffers rotate).
-
-    ``padded`` is the grid with a ``PAD``-cell UNKNOWN border, ``grid`` its interior view
-    (``grid[ix, iy]``); ``points`` the end points inside the grid in beam order (scanner
-    frame, metres), ``ij`` their cell indices (float, interior coordinates) and ``flat``
-    their flat index in the unpadded grid (one per point; a cell hit by several beams
-    appears several times).
-    """
-
-    padded: np.ndarray
-    points: np.ndarray
-    ij: np.ndarray
-    flat: np.ndarray
-    index: int = 0          # which buffer of its builder's ``stack``
-    free: np.ndarray | None = None   # (beams,) free range of each beam after erosion (m)
-    angle_min: float = 0.0
-    angle_increment: float = 1.0
-
-    def free_depth(self, xy: np.ndarray) -> np.ndarray:
-        """How far (m) beyond each point ``xy`` (k, 2; this scan's frame) the beam covering it
-        (the one nearest its bearing, as in the ray table) continued freeing space: the free
-        range of that beam minus the point's range. Negative where the beam stopped short,
-        -inf outside the field of view."""
-        free = self.free
-        if free is None or free.size == 0:
-            return np.full(xy.shape[0], -np.inf)
-        rng = np.hypot(xy[:, 0], xy[:, 1])
-        inc = self.angle_increment
-        k = np.mod((np.arctan2(xy[:, 1], xy[:, 0]) - self.angle_min) * math.copysign(1.0, inc),
-                   2.0 * math.pi) / abs(inc)
-        beam = np.rint(k)
-        wrapped = np.rint(k - 2.0 * math.pi / abs(inc))
-        n = free.size
-        beam = np.where((beam > n - 1) & (wrapped >= 0), wrapped, beam)
-        inside = (beam >= 0) & (beam <= n - 1)
-        depth = free[np.where(inside, beam, 0).astype(np.intp)] - rng
-        return np.where(inside, depth, -np.inf)
-
-    @property
-    def grid(self) -> np.ndarray:
-        return self.padded[PAD:-PAD, PAD:-PAD]
-
-    def occupied(self) -> np.ndarray:
-        """Sorted unique flat indices of the occupied cells."""
-        return np.unique(self.flat)
-
-
-class GridBuilder:
-    """Builds the occupancy grid of each scan into reusable buffers (no grid allocation per
-    scan). Flat indices into the padded buffer let the difference stage read a cell and its
-    neighbours with one gather and no bounds checks (the border is UNKNOWN)."""
-
-    def __init__(self, config: GridConfig, keep: int = 2):
-        """``keep``: how many grids stay valid (the current one and ``keep - 1`` before it)."""
-        self.config = config
-        self.cells = config.cells
-        m = self.cells + 2 * PAD
-        # One array holds every buffer, so that several grids can be read with one gather.
-        self.stack = np.zeros((max(2, keep), m, m), np.uint8)
-        self._which = 0
-        self._free_at_cell = np.empty(m * m, np.float32)
-        self._ext = np.empty(0, np.float32)
-        self._table_key = None
-        self._table: RayTable | None = None
-        self.echo_loss = 0.0            # see _loses_echoes
-        self._echo_scans = 0
-
-    def _loses_echoes(self, r, valid, no_return, range_max: float) -> bool:
-        """Whether this scanner loses echoes on surfaces within its range: the share of its
-        beams without a return between two returns nearer than half its range, averaged over
-        its scans (the last ``ECHO_LOSS_SCANS``), is at least ``lost_echoes``. A scanner that
-        returns from every surface in range (a SICK LMS) sees through such a gap into free
-        space; one that loses echoes on dark, specular or grazing surfaces (many Hokuyo-class
-        scanners indoors) may have hit a surface in it."""
-        idx = np.flatnonzero(valid)
-        share = 0.0
-        if idx.size >= 2:
-            beams = np.flatnonzero(no_return)
-            after = np.searchsorted(idx, beams)
-            inner = (after > 0) & (after < idx.size)
-            near = 0.5 * range_max
-            left = r[idx[np.maximum(after - 1, 0)]]
-            right = r[idx[np.minimum(after, idx.size - 1)]]
-            share = np.count_nonzero(inner & (left < near) & (right < near)) / r.size
-        self._echo_scans = min(self._echo_scans + 1, ECHO_LOSS_SCANS)
-        self.echo_loss += (share - self.echo_loss) / self._echo_scans
-        return self.echo_loss >= self.config.lost_echoes
-
-    def table(self, scan: Scan) -> RayTable:
-        key = (scan.angle_min, scan.angle_increment, scan.n_beams)
-        if key != self._table_key:
-            c = self.config
-            self._table = ray_table(float(scan.angle_min), float(scan.angle_increment),
-                                    scan.n_beams, self.cells, float(c.resolution),
-                                    float(c.free_margin))
-            self._table_key = key
-        return self._table
-
-    def build(self, scan: Scan) -> GridFrame:
-        c = self.config
-        n = self.cells
-        table = self.table(scan)
-        beams = scan.n_beams
-        if self._ext.size != beams + 1:
-            self._ext = np.empty(beams + 1, np.float32)   # beam count changed: tables adapt
-        ext = self._ext
-        # Scan.valid() and Scan.free_ranges() in one pass (same rules, fewer array passes).
-        r = scan.ranges
-        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)
-        limit = min(c.no_return_free, scan.range_max)
-        with np.errstate(invalid='ignore'):
-            valid = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
-            no_return = r >= scan.range_max
-        fr = ext[:beams]
-        # A return frees space up to the hit (no_return_free bounds only the beams that
-        # returned nothing: capping returns at it made no_return_free = 0 free nothing at all).
-        np.copyto(fr, r, where=valid)
-        fr[~valid] = 0.0
-        fr[no_return] = limit
-        if c.no_return_bounds and no_return.any():
-            chords = self._loses_echoes(r, valid, no_return, scan.range_max)
-            np.minimum(fr, no_return_bounds(r, valid, no_return, cos, sin, c, chords),
-                       out=fr)
-        if c.free_erosion:
-            raw = fr.copy()
-            jump = c.free_erosion_jump
-            for j in range(1, min(c.free_erosion, beams - 1) + 1):
-                # A neighbour's shorter free range bounds this beam's when both lie on one
-                # surface (a grazing wall), not across a depth jump (an object's edge).
-                a, b = raw[:-j], raw[j:]
-                near = np.abs(a - b) < jump
-                np.minimum(fr[j:], np.where(near, a, np.inf), out=fr[j:])
-                np.minimum(fr[:-j], np.where(near, b, np.inf), out=fr[:-j])
-        ext[beams] = -1.0   # "no beam": never free
-        index = self._which
-        padded = self.stack[index]
-        self._which = (self._which + 1) % self.stack.shape[0]
-        np.take(ext, table.beam, out=self._free_at_cell, mode='wrap')  # indices are valid
-        np.less(table.reach, self._free_at_cell, out=padded.reshape(-1).view(np.bool_))
-        # End points -> OCCUPIED cells.
-        rv = r[valid]
-        pts = np.empty((rv.size, 2))
-        np.multiply(rv, cos[valid], out=pts[:, 0])
-        np.multiply(rv, sin[valid], out=pts[:, 1])
-        half = n * c.resolution / 2.0
-        inside = (np.abs(pts) < half).all(axis=1)
-        pts = pts[inside]
-        ij = np.floor(pts * (1.0 / c.resolution) + n / 2.0)
-        flat = (ij[:, 0] * n + ij[:, 1]).astype(np.intp)
-        m = n + 2 * PAD
-        padded.reshape(-1)[(ij[:, 0] * m + ij[:, 1] + PAD * (m + 1)).astype(np.intp)] = \
-            OCCUPIED
-        return GridFrame(padded=padded, points=pts, ij=ij, flat=flat, index=index,
-                         free=fr.copy(), angle_min=float(scan.angle_min),
-                         angle_increment=float(scan.angle_increment))
-
-
+# ------------------------------------------------------------------------------ kernels
+#
+# Settings of the build kernel (a float array: one argument instead of many).
+_RES, _BOUNDS, _LOST, _COS_GRAZE, _GRAZE, _EROSION, _JUMP = range(7)
 #: Scans over which GridBuilder averages the share of beams that lost their echo (the mean
 #: of all scans so far until there are this many): a property of the scanner and the
 #: surfaces it sees, not of one scan.
@@ -338,16 +192,59 @@ SURFACE_RMS = 0.03
 SURFACE_LENGTH = 1.0
 
 
-def no_return_bounds(r: np.ndarray, valid: np.ndarray, no_return: np.ndarray,
-                     cos: np.ndarray, sin: np.ndarray, config: GridConfig,
-                     chords: bool = True) -> np.ndarray:
-    """Per beam, the farthest range (m) a beam without a return may free
-    (``no_return_bounds``); inf where nothing bounds it. Its run of beams without a return
-    lies between the returns before and after it (the run's edges):
+@jit.kernel
+def _sign(x):
+    """``np.sign``: 1, -1, 0 (a NaN stays NaN)."""
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return 0.0 if x == 0.0 else x
+
+
+@jit.kernel
+def _shrink(x, by):
+    """``sign(x) * max(|x| - by, 0)``: ``x`` moved ``by`` towards 0, not past it."""
+    v = abs(x) - by
+    return _sign(x) * (0.0 if v < 0.0 else v)
+
+
+@jit.kernel
+def _loses_echoes(r, idx, range_max, echo, lost):
+    """Whether this scanner loses echoes on surfaces within its range: the share of its
+    beams without a return between two returns nearer than half its range, averaged over
+    its scans (the last ``ECHO_LOSS_SCANS``; ``echo`` = [mean, scans], updated), is at least
+    ``lost`` (``lost_echoes``). A scanner that returns from every surface in range (a SICK
+    LMS) sees through such a gap into free space; one that loses echoes on dark, specular or
+    grazing surfaces (many Hokuyo-class scanners indoors) may have hit a surface in it."""
+    n, nv = r.size, idx.size
+    share = 0.0
+    if nv >= 2:
+        near = 0.5 * range_max
+        count = 0
+        after = 0                                   # valid beams before beam b
+        for b in range(n):
+            if after < nv and idx[after] == b:
+                after += 1
+            elif r[b] >= range_max and 0 < after < nv and r[idx[after - 1]] < near \
+                    and r[idx[after]] < near:
+                count += 1
+        share = count / n
+    scans = min(echo[1] + 1.0, ECHO_LOSS_SCANS)
+    echo[1] = scans
+    echo[0] += (share - echo[0]) / scans
+    return echo[0] >= lost
+
+
+@jit.kernel
+def _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free):
+    """Bound the free range of every beam without a return (``no_return_bounds``) by the
+    surfaces its neighbours see. Its run of beams without a return lies between the returns
+    before and after it (the run's edges):
 
     * with both edges, up to the chord joining them, when ``chords`` (the scanner loses
-      echoes on surfaces within its range, ``GridBuilder._loses_echoes``: the beam may
-      have hit anything beyond its neighbours' returns);
+      echoes on surfaces within its range, :func:`_loses_echoes`: the beam may have hit
+      anything beyond its neighbours' returns);
     * at an edge whose surface is seen at grazing incidence (``grazing_incidence``), up to
       that surface's continuation: the line through the last ``SURFACE_POINTS`` returns
       before the run (the first ones after it), when they lie within ``SURFACE_SPAN`` of the
@@ -355,72 +252,360 @@ def no_return_bounds(r: np.ndarray, valid: np.ndarray, no_return: np.ndarray,
 
     Each bound is moved half a cell towards the scanner, so that the cells the surface runs
     through are never freed."""
-    n = r.size
-    out = np.full(n, np.inf)
-    idx = np.flatnonzero(valid)
+    nv = idx.size
+    if nv < 2:
+        return
     m = SURFACE_POINTS
-    shift = 0.5 * config.resolution
-    if idx.size < 2:
-        return out
-    q = np.column_stack((r[idx] * cos[idx], r[idx] * sin[idx]))
-    # Window sums (cumulative, one zero row in front) for the line of m consecutive returns.
-    cum = np.zeros((idx.size + 1, 5))
-    np.cumsum(np.column_stack((q, q[:, 0] ** 2, q[:, 0] * q[:, 1], q[:, 1] ** 2)), axis=0,
-              out=cum[1:])
-    sums = (cum[m:] - cum[:-m]) / m                      # window w: returns w .. w + m - 1
-    mx, my = sums[:, 0], sums[:, 1]
-    sxx, sxy, syy = sums[:, 2] - mx * mx, sums[:, 3] - mx * my, sums[:, 4] - my * my
-    angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)       # direction of the line
-    half = 0.5 * (sxx + syy)
-    smallest = half - np.sqrt(np.maximum(half * half - (sxx * syy - sxy * sxy), 0.0))
-    span = np.hypot(*(q[m - 1:] - q[:1 - m or None]).T)
-    nx, ny = -np.sin(angle), np.cos(angle)               # the line's normal
-    offset = mx * nx + my * ny                           # its signed distance from the scanner
-    offset = np.sign(offset) * np.maximum(np.abs(offset) - shift, 0.0)
-    line_ok = (span <= SURFACE_SPAN) & (smallest <= SURFACE_RMS ** 2)
-    cos_graze = math.cos(math.radians(config.grazing_incidence))
-    # How far each return's surface runs on behind it and ahead of it (returns closer than
-    # free_erosion_jump to the previous one continue the surface).
-    step = np.hypot(*np.diff(q, axis=0).T)
-    run = np.concatenate(([0], np.cumsum(step >= config.free_erosion_jump)))
-    first = np.searchsorted(run, run, side='left')
-    last = np.searchsorted(run, run, side='right') - 1
-    behind = np.hypot(*(q - q[first]).T)
-    ahead = np.hypot(*(q[last] - q).T)
+    shift = 0.5 * settings[_RES]
+    qx = np.empty(nv)
+    qy = np.empty(nv)
+    for k in range(nv):
+        qx[k] = r[idx[k]] * cos[idx[k]]
+        qy[k] = r[idx[k]] * sin[idx[k]]
+    windows = nv - m + 1
+    grazing = settings[_GRAZE] != 0.0 and windows > 0
+    cum = np.zeros((nv + 1 if grazing else 0, 5))
+    first = np.empty(nv, np.intp)
+    last = np.empty(nv, np.intp)
+    if grazing:
+        # Window sums (cumulative, one zero row in front) for the line of m returns, and
+        # how far each return's surface runs on behind and ahead of it (returns closer than
+        # free_erosion_jump to the previous one continue the surface).
+        for k in range(nv):
+            v = (qx[k], qy[k], qx[k] * qx[k], qx[k] * qy[k], qy[k] * qy[k])
+            for c in range(5):
+                cum[k + 1, c] = v[c] if k == 0 else cum[k, c] + v[c]
+            first[k] = k if k == 0 or math.hypot(qx[k] - qx[k - 1], qy[k] - qy[k - 1]) \
+                >= settings[_JUMP] else first[k - 1]
+        for k in range(nv - 1, -1, -1):
+            last[k] = k if k == nv - 1 or first[k + 1] == k + 1 else last[k + 1]
+    cos_graze = settings[_COS_GRAZE]
+    after = 0
+    for b in range(r.size):
+        if after < nv and idx[after] == b:
+            after += 1
+            continue
+        if not r[b] >= range_max:
+            continue
+        dx, dy = cos[b], sin[b]
+        bound = np.inf
+        if chords and 0 < after < nv:            # the chord joining the run's edges
+            ax, ay = qx[after - 1], qy[after - 1]
+            ex, ey = qx[after] - ax, qy[after] - ay
+            length = math.hypot(ex, ey)
+            if length > 0.0:
+                nx, ny = -ey / length, ex / length
+                along = dx * nx + dy * ny
+                if along != 0.0:
+                    t = _shrink(ax * nx + ay * ny, shift) / along
+                    if t > 0.0:
+                        bound = t
+        for side in range(2 if grazing else 0):
+            edge = after - 1 if side == 0 else after
+            w = after - m if side == 0 else after
+            if not (0 <= edge < nv and 0 <= w < windows):
+                continue
+            mx = (cum[w + m, 0] - cum[w, 0]) / m
+            my = (cum[w + m, 1] - cum[w, 1]) / m
+            sxx = (cum[w + m, 2] - cum[w, 2]) / m - mx * mx
+            sxy = (cum[w + m, 3] - cum[w, 3]) / m - mx * my
+            syy = (cum[w + m, 4] - cum[w, 4]) / m - my * my
+            angle = 0.5 * math.atan2(2.0 * sxy, sxx - syy)      # direction of the line
+            half = 0.5 * (sxx + syy)
+            under = half * half - (sxx * syy - sxy * sxy)
+            smallest = half - math.sqrt(0.0 if under < 0.0 else under)
+            span = math.hypot(qx[w + m - 1] - qx[w], qy[w + m - 1] - qy[w])
+            if not (span <= SURFACE_SPAN and smallest <= SURFACE_RMS ** 2):
+                continue
+            nx, ny = -math.sin(angle), math.cos(angle)          # the line's normal
+            e = idx[edge]
+            if side == 0:
+                extent = math.hypot(qx[edge] - qx[first[edge]], qy[edge] - qy[first[edge]])
+            else:
+                extent = math.hypot(qx[last[edge]] - qx[edge], qy[last[edge]] - qy[edge])
+            if not (abs(cos[e] * nx + sin[e] * ny) <= cos_graze and extent >= SURFACE_LENGTH):
+                continue
+            along = dx * nx + dy * ny
+            if along != 0.0:
+                t = _shrink(mx * nx + my * ny, shift) / along
+                if t > 0.0:
+                    bound = min(bound, t)
+        if bound < free[b]:
+            free[b] = np.float32(bound)
 
-    beams = np.flatnonzero(no_return)
-    after = np.searchsorted(idx, beams)                  # first return after each beam
-    dx, dy = cos[beams], sin[beams]
-    # Between two returns, for a scanner that loses echoes: the chord joining them.
-    both = (after > 0) & (after < idx.size) & chords
-    if both.any():
-        a = q[np.maximum(after - 1, 0)]
-        b = q[np.minimum(after, idx.size - 1)]
-        ex, ey = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-        length = np.hypot(ex, ey)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            # The chord's distance from the scanner along its normal, moved towards it.
-            nx_c, ny_c = -ey / length, ex / length
-            off = a[:, 0] * nx_c + a[:, 1] * ny_c
-            off = np.sign(off) * np.maximum(np.abs(off) - shift, 0.0)
-            t = off / (dx * nx_c + dy * ny_c)
-        bound = both & (length > 0) & (t > 0)
-        out[beams[bound]] = t[bound]
-    if sums.shape[0] == 0 or config.grazing_incidence >= 90.0:
+
+@jit.kernel
+def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free, occupied):
+    """One scan's grid: ``free[:n]`` (float32) the free range of every beam, ``free[n]`` = -1
+    (the ray table's "no beam"), its end points' cells marked OCCUPIED in ``occupied`` (the
+    padded buffer, flat). Returns the end points inside the grid (beam order, scanner
+    frame), their cell indices (float) and flat indices (unpadded grid, then padded)."""
+    n = r.size
+    res = settings[_RES]
+    nv = 0
+    none = False
+    for i in range(n):
+        x = r[i]
+        if x >= valid_min and x < range_max:        # NaN: neither
+            free[i] = np.float32(x)
+            nv += 1
+        elif x >= range_max:
+            free[i] = np.float32(limit)
+            none = True
+        else:
+            free[i] = 0.0
+    idx = np.empty(nv, np.intp)
+    k = 0
+    for i in range(n):
+        if r[i] >= valid_min and r[i] < range_max:
+            idx[k] = i
+            k += 1
+    if settings[_BOUNDS] != 0.0 and none:
+        chords = _loses_echoes(r, idx, range_max, echo, settings[_LOST])
+        _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free)
+    erosion = min(int(settings[_EROSION]), n - 1)
+    if erosion > 0:
+        # A neighbour's shorter free range bounds a beam's when both lie on one surface (a
+        # grazing wall), not across a depth jump (an object's edge). In float32.
+        raw = free[:n].copy()
+        jump = np.float32(settings[_JUMP])
+        for j in range(1, erosion + 1):
+            for i in range(n - j):
+                a, b = raw[i], raw[i + j]
+                if abs(a - b) < jump:
+                    if a < free[i + j]:
+                        free[i + j] = a
+                    if b < free[i]:
+                        free[i] = b
+    free[n] = -1.0
+    half = cells * res / 2.0
+    inv = 1.0 / res
+    m = cells + 2 * PAD
+    pts = np.empty((nv, 2))
+    ij = np.empty((nv, 2))
+    flat = np.empty(nv, np.intp)
+    padded = np.empty(nv, np.intp)
+    k = 0
+    for i in idx:
+        x, y = r[i] * cos[i], r[i] * sin[i]
+        if abs(x) < half and abs(y) < half:
+            pts[k, 0], pts[k, 1] = x, y
+            u = math.floor(x * inv + cells / 2.0)
+            v = math.floor(y * inv + cells / 2.0)
+            ij[k, 0], ij[k, 1] = u, v
+            flat[k] = int(u) * cells + int(v)
+            padded[k] = (int(u) + PAD) * m + int(v) + PAD
+            occupied[padded[k]] = OCCUPIED
+            k += 1
+    return pts[:k], ij[:k], flat[:k], padded[:k]
+
+
+@jit.kernel
+def _render(occupied, free, beam, reach):
+    """The whole grid into ``occupied`` (a buffer with its OCCUPIED cells marked): FREE
+    where the cell's beam freed it."""
+    for p in range(occupied.size):
+        if occupied[p] == UNKNOWN and reach[p] < free[beam[p]]:
+            occupied[p] = FREE
+
+
+@jit.inline
+def cell_value(stack, lazy, free, beam, reach, k, p):
+    """The value of cell ``p`` (padded flat index) of the grid in buffer ``k``: its mark
+    (OCCUPIED; or any value once rendered), else FREE when the ray table says its beam
+    freed it (``lazy[k]``: the buffer holds only the marks)."""
+    v = stack[k, p]
+    if v == UNKNOWN and lazy[k] and reach[p] < free[k, beam[p]]:
+        return FREE
+    return v
+
+
+@jit.kernel
+def relative_motion(a, b):
+    """Pose ``b`` in the frame of pose ``a`` (SE(2) ``inverse(a) (+) b``) as a tuple:
+    ``geometry.between`` without numpy's per-call cost."""
+    ax, ay, at = a[0], a[1], a[2]
+    c, s = math.cos(at), math.sin(at)
+    dx, dy = b[0] - ax, b[1] - ay
+    return (c * dx + s * dy, -s * dx + c * dy,
+            (b[2] - at + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+@jit.kernel
+def index_map(x, y, theta, cells, resolution):
+    """The nearest-cell map from current-grid cells to cells of an earlier grid (``x, y,
+    theta``: the current scanner pose in that grid's frame): ``(c, s, u0, v0)``, a current
+    cell at continuous index ``(i, j)`` (cell centres at integers) lying at
+    ``(c i - s j + u0, s i + c j + v0)`` there."""
+    c, s = math.cos(theta), math.sin(theta)
+    centre = cells / 2.0 - 0.5
+    u0 = centre - (c * centre + -s * centre) + x / resolution
+    v0 = centre - (s * centre + c * centre) + y / resolution
+    return c, s, u0, v0
+
+
+@jit.inline
+def mapped_cell(i, j, c, s, u0, v0, cells):
+    """Padded flat index of the earlier grid's cell nearest to current cell ``(i, j)``
+    (:func:`index_map`; scipy's order-0 rounding, floor(x + 0.5)); outside the grid: the
+    UNKNOWN border."""
+    u = min(max(math.floor(jit.fma(j, -s, i * c) + (u0 + 0.5)), -1.0), float(cells))
+    v = min(max(math.floor(jit.fma(j, c, i * s) + (v0 + 0.5)), -1.0), float(cells))
+    return (int(u) + PAD) * (cells + 2 * PAD) + int(v) + PAD
+
+
+@jit.inline
+def covering_beam(x, y, angle_min, angle_increment, n_beams):
+    """The beam covering point ``(x, y)`` of a scan's frame (the one nearest its bearing, as
+    in the ray table), -1 outside the field of view."""
+    inc = angle_increment
+    k = ((math.atan2(y, x) - angle_min) * math.copysign(1.0, inc)) % (2.0 * math.pi) / abs(inc)
+    beam = np.rint(k)
+    wrapped = np.rint(k - 2.0 * math.pi / abs(inc))
+    if beam > n_beams - 1 and wrapped >= 0:
+        beam = wrapped
+    return int(beam) if 0 <= beam <= n_beams - 1 else -1
+
+
+@dataclass
+class GridFrame:
+    """One scan's grid and what the later stages need from it (valid for ``keep - 1`` more
+    builds of its :class:`GridBuilder`: its buffers rotate).
+
+    ``points`` are the end points inside the grid in beam order (scanner frame, metres),
+    ``ij`` their cell indices (float, interior coordinates) and ``flat`` their flat index in
+    the unpadded grid (one per point; a cell hit by several beams appears several times);
+    ``free`` the free range of every beam (m, float32, after bounds and erosion). ``grid``
+    (and ``padded``, with its ``PAD``-cell UNKNOWN border) renders the whole grid.
+    """
+
+    builder: GridBuilder
+    index: int                       # which buffer of its builder
+    points: np.ndarray
+    ij: np.ndarray
+    flat: np.ndarray
+    free: np.ndarray
+    angle_min: float = 0.0
+    angle_increment: float = 1.0
+
+    @property
+    def padded(self) -> np.ndarray:
+        self.builder.render(self.index)
+        return self.builder.stack[self.index]
+
+    @property
+    def grid(self) -> np.ndarray:
+        return self.padded[PAD:-PAD, PAD:-PAD]
+
+    def free_depth(self, xy: np.ndarray) -> np.ndarray:
+        """How far (m) beyond each point ``xy`` (k, 2; this scan's frame) the beam covering it
+        (:func:`covering_beam`) continued freeing space: the free range of that beam minus
+        the point's range. Negative where the beam stopped short, -inf outside the field of
+        view."""
+        out = np.full(xy.shape[0], -np.inf)
+        for r, (x, y) in enumerate(xy.tolist()):
+            beam = covering_beam(x, y, self.angle_min, self.angle_increment, self.free.size)
+            if beam >= 0:
+                out[r] = float(self.free[beam]) - math.hypot(x, y)
         return out
-    for edge, window, extent in ((after - 1, after - m, behind), (after, after, ahead)):
-        has = (edge >= 0) & (edge < idx.size) & (window >= 0) & (window < sums.shape[0])
-        w = np.where(has, window, 0)
-        k = np.where(has, edge, 0)
-        e = idx[k]
-        graze = (np.abs(cos[e] * nx[w] + sin[e] * ny[w]) <= cos_graze) & \
-            (extent[k] >= SURFACE_LENGTH)
-        along = dx * nx[w] + dy * ny[w]
-        with np.errstate(divide='ignore', invalid='ignore'):
-            t = offset[w] / along
-        bound = has & line_ok[w] & graze & (t > 0)
-        out[beams[bound]] = np.minimum(out[beams[bound]], t[bound])
-    return out
+
+    def occupied(self) -> np.ndarray:
+        """Sorted unique flat indices of the occupied cells."""
+        return np.unique(self.flat)
+
+
+class GridBuilder:
+    """Builds the occupancy grid of each scan into reusable buffers (no grid allocation per
+    scan) and keeps the last ``keep`` of them with each one's scanner pose and stamp, for
+    the difference map. The kernels read them through :attr:`arrays`."""
+
+    def __init__(self, config: GridConfig, keep: int = 2):
+        """``keep``: how many grids stay valid (the current one and ``keep - 1`` before it)."""
+        self.config = config
+        self.cells = config.cells
+        m = self.cells + 2 * PAD
+        keep = max(2, keep)
+        # One array holds every buffer, so that a kernel reads any of them.
+        self.stack = np.zeros((keep, m, m), np.uint8)
+        self._flat_stack = self.stack.reshape(keep, m * m)
+        self.lazy = np.zeros(keep, np.bool_)         # the buffer holds only OCCUPIED marks
+        self.free = np.full((keep, 2), -1.0, np.float32)   # per buffer: free ranges, -1
+        #: per buffer: scanner pose x, y, theta, stamp, angle_min, angle_increment, beams
+        self.meta = np.zeros((keep, 7))
+        self._marks: list[np.ndarray | None] = [None] * keep
+        self._which = 0
+        self._table_key = None
+        self._table: RayTable | None = None
+        self.echo = np.zeros(2)                      # share of echoes lost: mean, scans
+        cos_graze = math.cos(math.radians(config.grazing_incidence))
+        self.settings = np.array([config.resolution, config.no_return_bounds,
+                                  config.lost_echoes, cos_graze,
+                                  config.grazing_incidence < 90.0, config.free_erosion,
+                                  config.free_erosion_jump], dtype=float)
+
+    @property
+    def echo_loss(self) -> float:
+        """The scanner's share of beams without a return between nearby returns (mean over
+        its last ``ECHO_LOSS_SCANS`` scans with such beams)."""
+        return float(self.echo[0])
+
+    @property
+    def arrays(self) -> tuple:
+        """What the kernels read: the buffers (flat), which of them hold marks only, the
+        free ranges, the ray table (beam, reach) and the per-buffer ``meta``."""
+        table = self._table
+        beam, reach = (table.beam, table.reach) if table is not None else (_NO_BEAM, _NO_REACH)
+        return self._flat_stack, self.lazy, self.free, beam, reach, self.meta
+
+    def table(self, scan: Scan) -> RayTable:
+        key = (scan.angle_min, scan.angle_increment, scan.n_beams)
+        if key != self._table_key:
+            for k in np.flatnonzero(self.lazy):     # their cells are read with this table
+                self.render(int(k))
+            c = self.config
+            self._table = ray_table(float(scan.angle_min), float(scan.angle_increment),
+                                    scan.n_beams, self.cells, float(c.resolution),
+                                    float(c.free_margin))
+            self._table_key = key
+        return self._table
+
+    def render(self, index: int) -> None:
+        """Write the whole grid of buffer ``index`` (FREE cells too)."""
+        if self.lazy[index]:
+            _render(self._flat_stack[index], self.free[index], self._table.beam,
+                    self._table.reach)
+            self.lazy[index] = False
+            self._marks[index] = None
+
+    def build(self, scan: Scan, pose=(0.0, 0.0, 0.0)) -> GridFrame:
+        """The grid of ``scan``, taken at scanner pose ``pose`` (odometry frame)."""
+        c = self.config
+        beams = scan.n_beams
+        self.table(scan)
+        if self.free.shape[1] < beams + 1:           # more beams than ever: wider rows
+            wider = np.full((self.free.shape[0], beams + 1), -1.0, np.float32)
+            wider[:, :self.free.shape[1]] = self.free
+            self.free = wider
+        index = self._which
+        self._which = (index + 1) % self.stack.shape[0]
+        buffer = self._flat_stack[index]
+        marks = self._marks[index]
+        if marks is None:
+            buffer.fill(UNKNOWN)
+        else:
+            buffer[marks] = UNKNOWN
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)
+        free = self.free[index]
+        pts, ij, flat, marks = _build(scan.ranges, cos, sin, max(scan.range_min, 1e-6),
+                                      float(scan.range_max),
+                                      min(c.no_return_free, scan.range_max), self.settings,
+                                      self.cells, self.echo, free, buffer)
+        self._marks[index] = marks
+        self.lazy[index] = True
+        self.meta[index] = (*pose, scan.stamp, scan.angle_min, scan.angle_increment, beams)
+        return GridFrame(builder=self, index=index, points=pts, ij=ij, flat=flat,
+                         free=free[:beams], angle_min=float(scan.angle_min),
+                         angle_increment=float(scan.angle_increment))
 
 
 def build_grid(scan: Scan, config: GridConfig) -> np.ndarray:
@@ -428,20 +613,75 @@ def build_grid(scan: Scan, config: GridConfig) -> np.ndarray:
     return GridBuilder(config).build(scan).grid.copy()
 
 
-def _index_map(motion, cells: int, resolution: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index-space affine map from current-grid cells to previous-grid cells.
+class GridHistory:
+    """The earlier grids of a :class:`GridBuilder`, newest first, at most ``depth`` of them
+    (their poses and stamps are in the builder's ``meta``); ``order``: their buffers, as the
+    kernels read them."""
 
-    ``motion`` = (x, y, theta): the current scanner pose in the previous scanner frame.
-    A current cell at continuous index ``o`` (cell centres at integers) lies at
-    ``u = R o + offset`` in the previous grid.
-    """
-    x, y, theta = (float(v) for v in motion)
-    c, s = math.cos(theta), math.sin(theta)
-    rot = np.array([[c, -s], [s, c]])
-    centre = cells / 2.0 - 0.5
-    offset = np.array([centre, centre]) - rot @ np.array([centre, centre]) \
-        + np.array([x, y]) / resolution
-    return rot, offset
+    def __init__(self, builder: GridBuilder, depth: int):
+        self.builder = builder
+        self.frames: deque[GridFrame] = deque(maxlen=depth)
+        self.order = np.zeros(0, np.intp)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, k: int) -> GridFrame:
+        return self.frames[k]
+
+    def push(self, frame: GridFrame) -> None:
+        self.frames.appendleft(frame)
+        self.order = np.array([f.index for f in self.frames], np.intp)
+
+    def clear(self) -> None:
+        self.frames.clear()
+        self.order = self.order[:0]
+
+
+@jit.kernel
+def history_motions(meta, order, pose):
+    """(K, 3): the current scanner pose ``pose`` in the frame of each grid ``order[k]``
+    (``meta`` rows start with the grid's scanner pose)."""
+    out = np.empty((order.size, 3))
+    for k in range(order.size):
+        out[k, 0], out[k, 1], out[k, 2] = relative_motion(meta[order[k]], pose)
+    return out
+
+
+#: Cell offsets (row, column) read around a cell: itself, its 4- then its 8-neighbours.
+NEIGHBOURS_I = np.array([0, 1, -1, 0, 0, 1, 1, -1, -1])
+NEIGHBOURS_J = np.array([0, 0, 0, 1, -1, 1, -1, 1, -1])
+
+
+@jit.kernel
+def lookup(stack, lazy, free, beam, reach, buffers, motions, ij, cells, resolution,
+           neighbourhood):
+    """(K, c, q) uint8: the grid in buffer ``buffers[k]`` brought into the current frame by
+    ``motions[k]`` (nearest cell, as :func:`transform_grid`), at the current cells ``ij``
+    (c, 2); ``q`` = 1, or 5 / 9 with ``neighbourhood`` 1 / 2: also the mapped cell's 4- / 8-
+    neighbours there. Cells outside that grid read UNKNOWN."""
+    q = 1 if neighbourhood <= 0 else (5 if neighbourhood == 1 else 9)
+    m = cells + 2 * PAD
+    out = np.empty((buffers.size, ij.shape[0], q), np.uint8)
+    for k in range(buffers.size):
+        c, s, u0, v0 = index_map(motions[k, 0], motions[k, 1], motions[k, 2], cells,
+                                 resolution)
+        for r in range(ij.shape[0]):
+            p = mapped_cell(ij[r, 0], ij[r, 1], c, s, u0, v0, cells)
+            for n in range(q):
+                out[k, r, n] = cell_value(stack, lazy, free, beam, reach, buffers[k],
+                                          p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n])
+    return out
+
+
+def lookup_grid(padded: np.ndarray, motion, resolution: float, ij: np.ndarray,
+                neighbourhood: int = 0) -> np.ndarray:
+    """:func:`lookup` in one whole grid with its UNKNOWN border (``padded``): (c, q)."""
+    m = padded.shape[0]
+    motions = np.asarray(motion, dtype=float).reshape(1, 3)
+    return lookup(np.ascontiguousarray(padded).reshape(1, m * m), _NOT_LAZY, _NO_FREE,
+                  _NO_BEAM, _NO_REACH, _FIRST, motions, np.asarray(ij, dtype=float),
+                  m - 2 * PAD, float(resolution), neighbourhood)[0]
 
 
 def transform_grid(previous: np.ndarray, motion, resolution: float) -> np.ndarray:
@@ -450,70 +690,21 @@ def transform_grid(previous: np.ndarray, motion, resolution: float) -> np.ndarra
     ``motion`` is the current scanner pose in the previous scanner frame (the ego-motion over
     the time step). Cells that map outside the previous grid become ``UNKNOWN``.
     """
-    cells = previous.shape[0]
-    rot, offset = _index_map(motion, cells, resolution)
-    return ndimage.affine_transform(previous, rot, offset=offset, order=0, mode='grid-constant',
+    c, s, u0, v0 = index_map(*(float(v) for v in motion), previous.shape[0],
+                             float(resolution))
+    return ndimage.affine_transform(previous, np.array([[c, -s], [s, c]]),
+                                    offset=(u0, v0), order=0, mode='grid-constant',
                                     cval=int(UNKNOWN), output=np.uint8)
 
 
-def lookup_padded(padded: np.ndarray, motion, resolution: float, ij: np.ndarray,
-                  neighbourhood: int = 0) -> np.ndarray:
-    """Values of the transformed previous grid at current cells ``ij`` (k, 2) -> (k, m).
-
-    ``padded`` is the previous grid with its UNKNOWN border. Column 0 is the cell
-    itself (what :func:`transform_grid` gives there); with ``neighbourhood = 1`` columns 1..4
-    are its 4-neighbours in the previous grid, with ``neighbourhood = 2`` columns 1..8 its
-    8-neighbours. Cells outside the previous grid read UNKNOWN (the border).
-    """
-    m = padded.shape[0]
-    cells = m - 2 * PAD
-    rot, offset = _index_map(motion, cells, resolution)
-    uv = ij @ rot.T
-    uv += offset + 0.5
-    np.floor(uv, out=uv)                       # scipy's order-0 rounding: floor(x + 0.5)
-    np.clip(uv, -1, cells, out=uv)             # outside -> the UNKNOWN border
-    p = (uv[:, 0] * m + uv[:, 1] + PAD * (m + 1)).astype(np.intp)
-    k = 1 if neighbourhood <= 0 else (5 if neighbourhood == 1 else 9)
-    return padded.reshape(-1)[p[:, None] + _shift_offsets(m)[:k]]
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
 
 
-@lru_cache(maxsize=8)
-def _shift_offsets(m: int) -> np.ndarray:
-    out = _SHIFTS[:, 0] * m + _SHIFTS[:, 1]
-    out.setflags(write=False)
-    return out
-
-
-def lookup_stack(stack: np.ndarray, indices, motions, resolution: float,
-                 ij: np.ndarray) -> np.ndarray:
-    """Several grids at once: the value of grid ``stack[indices[k]]`` (padded) brought into the
-    current frame by ``motions[k]``, at the current cells ``ij`` (c, 2) -> (K, c). One gather
-    for all of them (the nearest-cell mapping of :func:`lookup_padded`)."""
-    K, m = len(indices), stack.shape[1]
-    cells = m - 2 * PAD
-    centre = cells / 2.0 - 0.5
-    motions = np.asarray(motions, dtype=float).reshape(K, 3)
-    c, s = np.cos(motions[:, 2]), np.sin(motions[:, 2])
-    rot = np.empty((K, 2, 2))
-    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
-    offset = centre - np.einsum('kij,j->ki', rot, np.array([centre, centre])) \
-        + motions[:, :2] / resolution
-    uv = ij[None, :, :] @ rot.transpose(0, 2, 1)
-    uv += (offset + 0.5)[:, None, :]
-    np.floor(uv, out=uv)
-    np.clip(uv, -1, cells, out=uv)
-    base = (np.asarray(indices) * (m * m) + PAD * (m + 1)).astype(np.float64)
-    p = (uv[..., 0] * m + uv[..., 1] + base[:, None]).astype(np.intp)
-    return stack.reshape(-1)[p]
-
-
-def lookup_previous(previous: np.ndarray, motion, resolution: float, flat: np.ndarray,
-                    neighbourhood: int = 0) -> np.ndarray:
-    """:func:`lookup_padded` for an unpadded grid and cells given by flat index."""
-    padded = np.pad(previous, PAD, constant_values=UNKNOWN)
-    ij = np.column_stack(np.divmod(flat, previous.shape[0])).astype(np.float64)
-    return lookup_padded(padded, motion, resolution, ij, neighbourhood)
-
-
-_SHIFTS = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1],
-                    [1, 1], [1, -1], [-1, 1], [-1, -1]], dtype=np.intp)
+# Stand-ins for a whole grid's lookups (no ray table), typed as the builder's arrays.
+_NO_BEAM = _read_only(np.zeros(1, np.intp))
+_NO_REACH = _read_only(np.full(1, np.inf, np.float32))
+_NO_FREE = np.zeros((1, 1), np.float32)
+_NOT_LAZY = np.zeros(1, np.bool_)
+_FIRST = np.zeros(1, np.intp)

@@ -113,37 +113,66 @@ def _configure():
 
 
 def kernel(function: Callable) -> Callable:
-    """``function`` compiled by numba (``njit``, cached on disk where possible)."""
+    """``function`` compiled by numba (``njit``, cached on disk where possible). Floating
+    point division by zero gives inf or NaN as in numpy (``error_model='numpy'``), not
+    Python's ZeroDivisionError: kernels replace numpy code and keep its arithmetic."""
     numba = _configure()
     if numba is None:
         def missing(*args, **kwargs):
             raise CompileError(f'numba cannot be imported ({_state["missing"]}): install it '
                                f'(pip install numba, or apt install python3-numba)')
         return missing
-    return numba.njit(cache=_state['cache'], nogil=True)(function)
+    return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy')(function)
+
+
+def inline(function: Callable) -> Callable:
+    """A small helper of kernels, compiled into each kernel that calls it (numba's
+    ``inline='always'``): a call that passes arrays to a separately compiled function costs
+    a reference count update per array, which in a per-point loop is most of the time."""
+    numba = _configure()
+    if numba is None:
+        return kernel(function)
+    return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy',
+                      inline='always')(function)
 
 
 def compiled(what: str, call: Callable[[], object]) -> None:
     """Run ``call`` (a first kernel call with a small valid input), once per process and
     ``what``: compiles, or loads from the cache, before the first real input. Raises
-    :class:`CompileError` (one line, naming the fix) when numba cannot compile here."""
+    :class:`CompileError` (one line, naming the fix) when numba cannot compile here. A call
+    for ``what`` made while ``call`` runs (it may build the stage that asked) returns at
+    once."""
     done = _state.setdefault('compiled', set())
     if what in done:
         return
     note = _state.pop('note', None)
     if note is not None:
         log.log(*note)
+    done.add(what)
     try:
         call()
-    except CompileError:
-        raise
     except Exception as exc:  # noqa: BLE001 - whatever numba or LLVM raised
+        done.discard(what)
+        if isinstance(exc, CompileError):
+            raise
         first = (str(exc).strip().splitlines() or [''])[0][:200]
         raise CompileError(f'numba cannot compile the {what} on this machine '
                            f'({type(exc).__name__}: {first}); start with {CPU_FIX} in the '
                            f'environment (an unusual CPU), or reinstall numba and '
                            f'llvmlite') from exc
-    done.add(what)
+
+
+@kernel
+def unique(values):
+    """``np.unique`` of a 1-D array (sorted, each value once); numba compiles its own
+    np.unique about ten times slower than a sort."""
+    out = np.sort(values)
+    n = 0
+    for i in range(out.size):
+        if i == 0 or out[i] != out[n - 1]:
+            out[n] = out[i]
+            n += 1
+    return out[:n]
 
 
 # ------------------------------------------------------------------ numpy's summation orders
@@ -212,6 +241,8 @@ def _block_sum(a, start, n):
 def pairwise_sum(a, start, n):
     """``a[start:start + n].sum()`` as numpy adds: blocks of at most 128, summed in halves
     (numpy's recursion, unrolled: numba cannot cache a recursive function)."""
+    if n <= 128:
+        return _block_sum(a, start, n)
     # frames: start, length, and the left half's sum once known (phase 1 -> 2)
     starts = np.empty(64, np.int64)
     lengths = np.empty(64, np.int64)

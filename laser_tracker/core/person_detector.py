@@ -4,10 +4,11 @@ The occupancy-grid method sees what moves; a person standing still, or walking a
 the robot, is invisible to it. This detector finds people in a single scan:
 
 1. :func:`laser_tracker.core.segmentation.segment` splits the scan into clusters by jump
-   distance and describes each cluster's shape (features independent of the beam density);
+   distance (the scan's segments, ``segments.*``) and describes each cluster's shape
+   (features independent of the beam density);
 2. a small gradient-boosted tree ensemble (:class:`LegClassifier`, trained offline by
-   ``laser-tracker train-detector`` with scikit-learn, evaluated here with numpy only) gives
-   each cluster a leg probability;
+   ``laser-tracker train-detector`` with scikit-learn, evaluated here by a compiled kernel)
+   gives each cluster a leg probability;
 3. legs become people (:meth:`PersonDetector.detect`): two legs at most ``pair_distance``
    apart are one person at their midpoint, the pairs chosen greedily by their mean
    probability, each leg used once; the second leg of a pair needs only
@@ -41,8 +42,12 @@ from typing import Any
 import numpy as np
 
 from laser_tracker.config import param
+from laser_tracker.core import jit
+from laser_tracker.core.jit import pairwise_sum
 from laser_tracker.core.scan import Scan
-from laser_tracker.core.segmentation import FEATURE_NAMES, FEATURE_SET, Clusters, segment
+from laser_tracker.core.segmentation import (FEATURE_NAMES, FEATURE_SET, Clusters,
+                                             SegmentConfig, _clusters, as_clusters,
+                                             kernel_arguments)
 from laser_tracker.errors import InputFileError
 
 log = logging.getLogger(__name__)
@@ -62,16 +67,13 @@ class DetectorModelError(InputFileError):
 
 
 class LegClassifier:
-    """Gradient-boosted trees evaluated with numpy: ``predict_proba(features) -> (k,)``.
+    """Gradient-boosted trees, evaluated by a kernel: ``predict_proba(features) -> (k,)``.
 
     Every tree is complete to ``depth``: node ``i`` has children ``2i+1`` (left, taken when
     ``x[feature] <= threshold``) and ``2i+2``; the ``2**depth`` leaves follow the
-    ``2**depth - 1`` inner nodes. Features are compared as float32, as scikit-learn does, so
-    the probabilities equal its ``predict_proba`` on the same features.
-
-    Trees of depth 3 or less are evaluated without walking them: all inner-node tests of
-    all trees at once, the test outcomes of each tree packed into one byte, and that byte
-    looked up in a table of each tree's leaf values (2**7 entries per tree at depth 3).
+    ``2**depth - 1`` inner nodes. Features are compared as float32, as scikit-learn does, and
+    the leaves added as numpy adds them, so the probabilities equal its ``predict_proba`` on
+    the same features.
     """
 
     def __init__(self, feature: np.ndarray, threshold: np.ndarray, value: np.ndarray,
@@ -85,64 +87,56 @@ class LegClassifier:
         trees, inner = self.feature.shape
         self.depth = int(inner + 1).bit_length() - 1
         self.n_trees = trees
-        self._inner = inner
-        self._feature_flat = self.feature.ravel()
-        self._threshold_flat = self.threshold.ravel()
-        self._value_flat = self.value.ravel()
-        self._tree_inner = np.arange(trees, dtype=np.intp) * inner
-        # leaf value index of global node g = t * inner + local, local in inner..2 inner:
-        # t * (inner + 1) + local - inner = g + t - inner
-        self._tree_leaf = np.arange(trees, dtype=np.intp) - inner
-        self._table = self._leaf_table() if self.depth <= 3 else None
-        self._table_offset = np.arange(trees, dtype=np.intp) * (2 ** inner)
-        # node-major copies (all trees' node 0, then all trees' node 1, ...) for the table
-        self._feature_nodes = np.ascontiguousarray(self.feature.T).ravel()
-        self._threshold_nodes = np.ascontiguousarray(self.threshold.T).ravel()
-        self._bit = (1 << np.arange(inner)).astype(np.uint8)
-
-    def _leaf_table(self) -> np.ndarray:
-        """(trees * 2**inner,) leaf value for every pattern of inner-node test outcomes
-        (bit i set: the test of node i sends right)."""
-        inner = self._inner
-        codes = np.arange(2 ** inner)
-        bits = (codes[:, None] >> np.arange(inner)) & 1          # (codes, inner)
-        node = np.zeros(codes.size, dtype=np.intp)
-        for _ in range(self.depth):
-            node = 2 * node + 1 + bits[np.arange(codes.size), node]
-        return (self.value[:, node - inner]).ravel()             # (trees, codes)
 
     @property
     def recommended_threshold(self) -> float:
         return float(self.meta.get('threshold', 0.5))
 
+    @property
+    def arrays(self) -> tuple:
+        """The trees as :func:`_decision` reads them."""
+        return self.feature, self.threshold, self.value, self.bias
+
     def decision_function(self, features: np.ndarray) -> np.ndarray:
         """Raw scores (log-odds) of the rows of ``features`` (k, len(FEATURE_NAMES))."""
-        x = np.asarray(features, dtype=np.float32)
-        k = x.shape[0]
-        if k == 0:
-            return np.zeros(0)
-        x = x.astype(np.float64)
-        if self._table is not None:
-            right = np.take(x, self._feature_nodes, axis=1) > self._threshold_nodes
-            code = np.einsum('knt,n->kt', right.reshape(k, self._inner, self.n_trees).view(
-                np.uint8), self._bit)                               # (k, trees) in 0..127
-            leaves = self._table[code + self._table_offset]
-            return self.bias + leaves.sum(axis=1)
-        flat = x.ravel()
-        rows = (np.arange(k, dtype=np.intp) * x.shape[1])[:, None]
-        node = np.broadcast_to(self._tree_inner, (k, self.n_trees))
-        base = self._tree_inner
-        for _ in range(self.depth):
-            right = flat[rows + self._feature_flat[node]] > self._threshold_flat[node]
-            # child of global node g in a tree starting at base: base + 2 (g - base) + 1 (+1)
-            node = 2 * node - base + 1 + right
-        leaves = self._value_flat[node + self._tree_leaf]
-        return self.bias + leaves.sum(axis=1)
+        return _decision(np.ascontiguousarray(features, dtype=np.float64), *self.arrays)
 
     def predict_proba(self, features: np.ndarray) -> np.ndarray:
         """Leg probability of each row of ``features``."""
-        z = self.decision_function(features)
-        return 1.0 / (1.0 + np.exp(-np.clip(z, -50.0, 50.0)))
+        return probability(self.decision_function(features))
+
+
+def probability(z: np.ndarray) -> np.ndarray:
+    """The probability of raw scores ``z`` (numpy's exp, kept bit for bit)."""
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -50.0, 50.0)))
+
+
+@jit.kernel
+def _decision(features, feature, threshold, value, bias):
+    """``bias`` plus the leaf of every tree reached by each row of ``features`` (the
+    leaves summed pairwise, as numpy sums a row)."""
+    trees, inner = feature.shape
+    out = np.empty(features.shape[0])
+    leaves = np.empty(trees)
+    for r in range(features.shape[0]):
+        for t in range(trees):
+            node = 0
+            while node < inner:
+                x = np.float64(np.float32(features[r, feature[t, node]]))
+                node = 2 * node + (2 if x > threshold[t, node] else 1)
+            leaves[t] = value[t, node - inner]
+        out[r] = bias + pairwise_sum(leaves, 0, trees)
+    return out
+
+
+@jit.kernel
+def _classified(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_width,
+                max_range, feature, threshold, value, bias):
+    """The scan's segments (``segmentation._clusters``) and their raw scores, in one
+    call."""
+    clusters = _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points,
+                         max_width, max_range)
+    return clusters, _decision(clusters[3], feature, threshold, value, bias)
 
 
 def save_model(path: str | Path, classifier: LegClassifier) -> None:
@@ -265,16 +259,8 @@ class PersonDetectorConfig:
     pair_distance: float = param(0.6, 'Two legs at most this far apart (m, between cluster '
                                  'centres) are one person: a stride at knee height.',
                                  min=0.05, max=2.0)
-    jump_distance: float = param(0.13, 'Consecutive scan points further apart than this (m) '
-                                 'belong to different clusters; keep the value the model was '
-                                 'trained with.', min=0.01, max=1.0)
-    min_points: int = param(3, 'Fewest points of a cluster that is classified.', min=3,
-                            max=1000)
-    max_cluster_width: float = param(1.0, 'Clusters wider than this (m, end to end) are not '
-                                     'classified (walls; two legs side by side are about '
-                                     '0.4 m).', min=0.1, max=10.0)
-    max_range: float = param(8.0, 'Clusters farther than this (m) are not classified.',
-                             min=0.1, max=100.0)
+    max_range: float = param(8.0, 'Segments (segments.*) farther than this (m) are not '
+                             'classified.', min=0.1, max=100.0)
     max_legs: int = param(32, 'At most this many leg candidates per scan (the most probable) '
                           'are paired: bounds the work in a crowd.', min=2, max=1000)
 
@@ -321,12 +307,15 @@ class PersonDetector:
     """``PersonDetector(config).detect(scan) -> PersonDetections``.
 
     The model is loaded when the detector is made (DetectorModelError if it cannot be; not
-    at all when ``enabled`` is false); ``classifier`` may be given instead.
+    at all when ``enabled`` is false); ``classifier`` may be given instead. The clusters it
+    classifies are the scan's segments (``segments``, ``core.segmentation``).
     """
 
     def __init__(self, config: PersonDetectorConfig | None = None,
-                 classifier: LegClassifier | None = None):
+                 classifier: LegClassifier | None = None,
+                 segments: SegmentConfig | None = None):
         self.config = config or PersonDetectorConfig()
+        self.segments = segments or SegmentConfig()
         c = self.config
         if classifier is None:
             classifier = load_model(c.model) if c.enabled else \
@@ -335,18 +324,21 @@ class PersonDetector:
         self.threshold = c.threshold or self.classifier.recommended_threshold
         self.partner_threshold = c.partner_threshold or 0.5 * self.threshold
         self.single_leg_threshold = c.single_leg_threshold or self.threshold
+        jump = self.segments.jump_distance
         trained = self.classifier.meta.get('segmentation', {}).get('jump_distance')
-        if trained is not None and abs(float(trained) - c.jump_distance) > 1e-9:
-            log.warning('person detector: jump_distance %.3f differs from the %.3f the model '
-                        '%s was trained with', c.jump_distance, float(trained),
+        if trained is not None and abs(float(trained) - jump) > 1e-9:
+            log.warning('person detector: segments.jump_distance %.3f differs from the %.3f '
+                        'the model %s was trained with', jump, float(trained),
                         self.classifier.path)
 
     def classify(self, scan: Scan) -> tuple[Clusters, np.ndarray]:
-        """The scan's clusters and their leg probabilities."""
-        c = self.config
-        clusters = segment(scan, c.jump_distance, c.min_points, c.max_cluster_width,
-                           c.max_range)
-        return clusters, self.classifier.predict_proba(clusters.features)
+        """The scan's segments within ``max_range`` and their leg probabilities (one kernel
+        call)."""
+        s = self.segments
+        raw, z = _classified(*kernel_arguments(scan, s.jump_distance, s.min_points,
+                                               s.max_width, self.config.max_range),
+                             *self.classifier.arrays)
+        return as_clusters(raw), probability(z)
 
     def detect(self, scan: Scan) -> PersonDetections:
         c = self.config

@@ -15,7 +15,8 @@ module only composes them, exactly as the node graph does over topics (``ego_mot
 
 Configuration: :class:`PipelineConfig` aggregates the sections declared in the modules;
 ``config/laser_tracker.yaml`` holds them in ROS parameter form, node ``ego_motion``
-(``ego_motion.*``), node ``detection`` (``grid.*``, ``difference.*``, ``blobs.*``), node
+(``ego_motion.*``), node ``detection`` (``grid.*``, ``difference.*``, ``blobs.*``,
+``segments.*``, ``person_detector.*``), node
 ``tracking`` (``hypotheses.*``, ``kalman.*``); ``laser_tracker.parameters.load`` reads it.
 """
 from __future__ import annotations
@@ -38,6 +39,7 @@ from laser_tracker.core.hypotheses import HypothesisArrays, HypothesisConfig
 from laser_tracker.core.kalman import KalmanConfig
 from laser_tracker.core.person_detector import PersonDetectorConfig
 from laser_tracker.core.scan import Scan
+from laser_tracker.core.segmentation import SegmentConfig
 from laser_tracker.core.self_mask import SelfMaskConfig
 from laser_tracker.core.stages import Detection, Detector, EgoMotion, StampedPose, Tracker
 
@@ -46,7 +48,7 @@ from laser_tracker.core.stages import Detection, Detector, EgoMotion, StampedPos
 
 NODES: dict[str, tuple[str, ...]] = {
     'ego_motion': ('ego_motion', 'self_mask'),
-    'detection': ('grid', 'difference', 'blobs', 'person_detector'),
+    'detection': ('grid', 'difference', 'blobs', 'segments', 'person_detector'),
     'tracking': ('hypotheses', 'kalman'),
 }
 
@@ -60,6 +62,7 @@ class PipelineConfig:
     grid: GridConfig = field(default_factory=GridConfig)
     difference: DifferenceConfig = field(default_factory=DifferenceConfig)
     blobs: BlobConfig = field(default_factory=BlobConfig)
+    segments: SegmentConfig = field(default_factory=SegmentConfig)
     person_detector: PersonDetectorConfig = field(default_factory=PersonDetectorConfig)
     hypotheses: HypothesisConfig = field(default_factory=HypothesisConfig)
     kalman: KalmanConfig = field(default_factory=KalmanConfig)
@@ -132,7 +135,7 @@ class Pipeline:
         self.times = {s: 0.0 for s in STAGES}
         self.ego = EgoMotion(c.ego_motion, odom_wait, self_mask=c.self_mask)
         self.detector = Detector(c.grid, c.difference, c.blobs, c.person_detector,
-                                 times=self.times if profile else None)
+                                 times=self.times if profile else None, segments=c.segments)
         self.tracker = Tracker(c.hypotheses, c.kalman)
 
     # ------------------------------------------------------------------ streams

@@ -48,6 +48,8 @@ class Scan:
 
     def __post_init__(self):
         self.ranges = np.asarray(self.ranges, dtype=np.float64).ravel()
+        if not self.ranges.flags.writeable:      # the kernels are compiled for writable ones
+            self.ranges = self.ranges.copy()
         if self.ranges.size == 0:
             raise ScanError('scan has no beams')
         if not np.isfinite(self.stamp) or self.stamp < 0:

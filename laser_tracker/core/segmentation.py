@@ -1,7 +1,10 @@
-"""Split one scan into clusters by jump distance and describe each cluster's shape.
+"""Split one scan into segments by jump distance and describe each segment's shape.
 
-A cluster is a run of consecutive valid end points (beam order, beams without a return
-skipped) in which each point lies within ``jump_distance`` of the previous one. The features
+A segment (a cluster) is a run of consecutive valid end points (beam order, beams without a
+return skipped) in which each point lies within ``jump_distance`` of the previous one. The
+scan's segments (:class:`SegmentConfig`, ``segments.*``) are what the person detector
+classifies and, when it does not run, the compact segments that keep a stopped object's
+track alive: one segmentation, one kernel call per scan (:func:`segment`). The features
 are meant to classify a cluster as a leg on scanners the classifier has never seen (0.25 to
 1 degree between beams), so none of them is a raw point count: every feature is a length, an
 angle or a ratio of the cluster's shape, or a count normalised by what the beam spacing at
@@ -41,10 +44,14 @@ order, ``c`` their centroid, ``r = |c|``, ``da`` the angle between beams):
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from laser_tracker.config import param
+from laser_tracker.core import jit
+from laser_tracker.core.jit import pairwise_sum
 from laser_tracker.core.scan import Scan, beam_table
 
 FEATURE_SET = 'leg-shape-1'
@@ -58,8 +65,21 @@ CLEARANCE = 0.15            # m beside each end searched for the nearest return
 MAX_WINDOW_ANGLE = np.pi / 4   # rad, the widest such search (for very near clusters)
 MAX_CLEAR = 0.5             # m, clearance clip (see clear_min)
 _EPS = 1e-9
-_WIDTH = FEATURE_NAMES.index('width')
-_DISTANCE = FEATURE_NAMES.index('distance')
+
+
+@dataclass(frozen=True)
+class SegmentConfig:
+    """The scan's segments (node ``detection``, ``segments.*``): what the person detector
+    classifies and, when it does not run, the compact segments that keep a stopped object's
+    track alive."""
+
+    jump_distance: float = param(0.13, 'Consecutive scan points further apart than this (m) '
+                                 'end a segment; for the person detector keep the value its '
+                                 'model was trained with.', min=0.01, max=2.0)
+    min_points: int = param(3, 'Fewest points of a segment.', min=3, max=1000)
+    max_width: float = param(1.0, 'Segments wider than this (m, end to end) are structure '
+                             '(walls; two legs side by side are about 0.4 m), not an '
+                             'object.', min=0.05, max=10.0)
 
 
 @dataclass
@@ -100,177 +120,195 @@ class Clusters:
 def segment(scan: Scan, jump_distance: float = 0.13, min_points: int = 3,
             max_width: float = 1.0, max_range: float | None = None) -> Clusters:
     """Clusters of ``scan`` with at least ``min_points`` (>= 3) points, at most ``max_width``
-    metres between their ends and their centroid within ``max_range``, with their features.
-
-    The cost per scan is a fixed number of numpy calls whatever the number of clusters: every
-    quantity is computed for all clusters at once (per-cluster sums with one
-    ``np.add.reduceat``) and the clusters that fail the filters are dropped at the end.
-    """
-    min_points = max(int(min_points), 3)
-    ranges = scan.ranges
-    with np.errstate(all='ignore'):
-        return _segment(scan, ranges, jump_distance, min_points, max_width, max_range)
+    metres between their ends and their centroid within ``max_range``, with their features:
+    one kernel call."""
+    return as_clusters(_clusters(*kernel_arguments(scan, jump_distance, min_points, max_width,
+                                                   max_range)))
 
 
-def _segment(scan, ranges, jump_distance, min_points, max_width, max_range) -> Clusters:
-    valid = (ranges >= max(scan.range_min, 1e-6)) & (ranges < scan.range_max)  # NaN: False
-    beams = np.flatnonzero(valid)
-    m = beams.size
-    if m < min_points:
-        return Clusters.empty()
+def segments_of(scan: Scan, config: SegmentConfig, max_range: float | None = None) -> Clusters:
+    """:func:`segment` with the settings of ``config``."""
+    return segment(scan, config.jump_distance, config.min_points, config.max_width, max_range)
+
+
+def kernel_arguments(scan: Scan, jump_distance: float, min_points: int, max_width: float,
+                     max_range: float | None) -> tuple:
+    """The arguments of :func:`_clusters` for :func:`segment`'s."""
     _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams)
-    r = ranges[beams]
-    p = np.empty((m, 2))
-    np.multiply(r, cos[beams], out=p[:, 0])
-    np.multiply(r, sin[beams], out=p[:, 1])
-    step = p[1:] - p[:-1]
-    step_len = np.sqrt(np.einsum('ij,ij->i', step, step))
-    cut = step_len > jump_distance
-    start = np.empty(m, dtype=bool)
-    start[0] = True
-    start[1:] = cut
-    starts = np.flatnonzero(start)
-    k = starts.size
-    counts = np.empty(k, dtype=np.intp)
-    counts[:-1] = starts[1:]
-    counts[-1] = m
-    counts -= starts
-    ends = starts + counts - 1
-    features, centroid = _features(scan, valid, beams, r, p, step_len, cut, starts, ends, counts)
-    keep = (counts >= min_points) & (features[:, _WIDTH] <= max_width)
-    if max_range is not None:
-        keep &= features[:, _DISTANCE] <= max_range
-    kept = np.flatnonzero(keep)
-    if kept.size == 0:
-        return Clusters.empty(total=k)
-    features = features[kept]
-    return Clusters(xy=centroid[kept], first=beams[starts[kept]], last=beams[ends[kept]],
-                    n_points=counts[kept], features=features[:, :len(FEATURE_NAMES)],
-                    occluded=features[:, len(FEATURE_NAMES):] < 0.0, total=k)
+    return (scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+            abs(float(scan.angle_increment)), float(jump_distance), max(int(min_points), 3),
+            float(max_width), np.inf if max_range is None else float(max_range))
 
 
-def _features(scan, valid, beams, r, p, step_len, cut, starts, ends, counts):
-    """The features of every cluster (rows of clusters under 3 points are garbage) followed
-    by the clearances of its first and last end, and the centroids."""
-    k, m = starts.size, p.shape[0]
-    n = counts.astype(np.float64)
-    out = np.empty((k, len(FEATURE_NAMES) + 2))      # + the two end clearances, unsorted
-    centroid = np.add.reduceat(p, starts, axis=0)
-    centroid /= n[:, None]
-    # Per-point terms about the centroid summed per cluster in one reduceat: second moments,
-    # the circle fit's third and fourth, and the boundary steps.
-    u = p - centroid[np.repeat(np.arange(k), counts)]
-    ux, uy = u[:, 0], u[:, 1]
-    q = np.empty((m, 8))
-    np.multiply(ux, ux, out=q[:, 0])
-    np.multiply(uy, uy, out=q[:, 1])
-    np.multiply(ux, uy, out=q[:, 2])
-    z = q[:, 0] + q[:, 1]
-    np.multiply(z, ux, out=q[:, 3])
-    np.multiply(z, uy, out=q[:, 4])
-    np.multiply(z, z, out=q[:, 5])
-    q[:-1, 6] = step_len * ~cut                 # the step to the next point of the cluster
-    q[-1, 6] = 0.0
-    np.multiply(q[:, 6], q[:, 6], out=q[:, 7])
-    suu, svv, suv, szu, szv, szz, length, length_sq = np.add.reduceat(q, starts, axis=0).T
+def as_clusters(raw: tuple) -> Clusters:
+    """:class:`Clusters` of :func:`_clusters`' result."""
+    xy, ends, n_points, features, clear, total = raw
+    if xy.shape[0] == 0:
+        return Clusters.empty(total=total)
+    return Clusters(xy=xy, first=ends[:, 0], last=ends[:, 1], n_points=n_points,
+                    features=features, occluded=clear < 0.0, total=total)
 
-    ends3 = p[np.concatenate((starts, ends))]
-    first, last = ends3[:k], ends3[k:]
-    chord = last - first
-    width = np.sqrt(np.einsum('ij,ij->i', chord, chord), out=out[:, 1])
-    distance = np.sqrt(np.einsum('ij,ij->i', centroid, centroid), out=out[:, 8])
-    np.multiply(n * distance, abs(float(scan.angle_increment)) / LEG_WIDTH, out=out[:, 0])
+
+# ------------------------------------------------------------------------------ kernels
+
+
+@jit.kernel
+def _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_width,
+              max_range):
+    """The clusters of a scan (see :func:`segment`) that pass the filters: centroids, first
+    and last beams, points, features, the clearances of the first and the last end; and how
+    many clusters there were before the filters. Sums over a cluster's points are added as
+    ``np.add.reduceat`` adds them (:func:`_reduceat`), so that the features stay those of
+    the numpy formulation bit for bit."""
+    n = ranges.size
+    beams = np.empty(n, np.intp)
+    m = 0
+    for i in range(n):
+        if ranges[i] >= valid_min and ranges[i] < range_max:           # NaN: False
+            beams[m] = i
+            m += 1
+    n_feat = len(FEATURE_NAMES)
+    if m < min_points:
+        return (np.zeros((0, 2)), np.zeros((0, 2), np.intp), np.zeros(0, np.intp),
+                np.zeros((0, n_feat)), np.zeros((0, 2)), 0)
+    px = np.empty(m)
+    py = np.empty(m)
+    for k in range(m):
+        px[k] = ranges[beams[k]] * cos[beams[k]]
+        py[k] = ranges[beams[k]] * sin[beams[k]]
+    step = np.empty(m)                   # to the next point of the cluster, 0 at its end
+    starts = np.empty(m + 1, np.intp)
+    total = 1
+    starts[0] = 0
+    for k in range(m - 1):
+        dx, dy = px[k + 1] - px[k], py[k + 1] - py[k]
+        step[k] = math.sqrt(dx * dx + dy * dy)
+        if step[k] > jump:
+            starts[total] = k + 1
+            total += 1
+            step[k] = 0.0
+    step[m - 1] = 0.0
+    starts[total] = m
+    # A window of beams beside each end for the clearances: ranges, inf where no return.
+    free = np.full(n + 1, np.inf)
+    for k in range(m):
+        free[beams[k]] = ranges[beams[k]]
+    xy = np.empty((total, 2))
+    ends = np.empty((total, 2), np.intp)
+    counts = np.empty(total, np.intp)
+    out = np.empty((total, n_feat))
+    clear = np.empty((total, 2))
+    kept = 0
+    for c in range(total):
+        a, b = starts[c], starts[c + 1] - 1
+        count = b - a + 1
+        if count < min_points:
+            continue
+        chx, chy = px[b] - px[a], py[b] - py[a]
+        width = math.sqrt(chx * chx + chy * chy)
+        if not width <= max_width:
+            continue
+        nf = float(count)
+        cx, cy = _reduceat(px, a, b) / nf, _reduceat(py, a, b) / nf
+        distance = math.sqrt(cx * cx + cy * cy)
+        if not distance <= max_range:
+            continue
+        f = out[kept]
+        _shape_features(px, py, step, a, b, cx, cy, nf, width, chx, chy, f)
+        f[0] = nf * distance * (da / LEG_WIDTH)
+        f[1], f[8] = width, distance
+        for e in range(2):                      # the beams beside the first / last end
+            beam = beams[a] if e == 0 else beams[b]
+            r = ranges[beam]
+            span = int(min(math.ceil(CLEARANCE / (r * da)), math.ceil(MAX_WINDOW_ANGLE / da)))
+            if e == 0:
+                near = _window_min(free, max(beam - span, 0), beam - 1)
+            else:
+                near = _window_min(free, beam + 1, min(beam + span, n - 1))
+            clear[kept, e] = min(max(near - r, -MAX_CLEAR), MAX_CLEAR)  # inf: nothing there
+        c0, c1 = clear[kept, 0], clear[kept, 1]
+        f[9] = (1.0 if c0 < 0.0 else 0.0) + (1.0 if c1 < 0.0 else 0.0)
+        f[10], f[11] = min(c0, c1), max(c0, c1)
+        xy[kept, 0], xy[kept, 1] = cx, cy
+        ends[kept, 0], ends[kept, 1] = beams[a], beams[b]
+        counts[kept] = count
+        kept += 1
+    return xy[:kept], ends[:kept], counts[:kept], out[:kept], clear[:kept], total
+
+
+@jit.kernel
+def _shape_features(px, py, step, a, b, cx, cy, n, width, chx, chy, f):
+    """The shape features 2-7 of the cluster of points ``a..b`` into ``f`` (see the module
+    docstring): line and circle fits in centred coordinates, boundary length and
+    regularity, bulge."""
+    terms = np.empty((8, b - a + 1))
+    for k in range(a, b + 1):
+        ux, uy = px[k] - cx, py[k] - cy
+        uu, vv = ux * ux, uy * uy
+        z = uu + vv
+        t = (uu, vv, ux * uy, z * ux, z * uy, z * z, step[k], step[k] * step[k])
+        for i in range(8):
+            terms[i, k - a] = t[i]
+    sums = np.empty(8)
+    for i in range(8):
+        sums[i] = _reduceat(terms[i], 0, b - a)
+    suu, svv, suv, szu = sums[0], sums[1], sums[2], sums[3]
+    szv, szz, length, length_sq = sums[4], sums[5], sums[6], sums[7]
     # Total least squares line: the smaller eigenvalue of the scatter matrix.
     half_trace = 0.5 * (suu + svv)
-    root = np.sqrt(0.25 * (suu - svv) ** 2 + suv * suv)
-    line_rms = np.sqrt(np.maximum(half_trace - root, 0.0) / n, out=out[:, 2])
+    root = math.sqrt(0.25 * (suu - svv) ** 2 + suv * suv)
+    line_rms = math.sqrt(_at_least(half_trace - root, 0.0) / n)
     # Kasa circle in centred coordinates (minimises sum (|u - c|^2 - R^2)^2): a 2x2 linear
-    # system per cluster. Its minimum over (2R)^2 is the squared geometric residual to first
-    # order.
+    # system. Its minimum over (2R)^2 is the squared geometric residual to first order.
     det2 = 2.0 * (suu * svv - suv * suv)
     uc = (svv * szu - suv * szv) / det2
     vc = (suu * szv - suv * szu) / det2
     mean_z = 2.0 * half_trace / n
-    radius = np.sqrt(uc * uc + vc * vc + mean_z)
+    radius = math.sqrt(uc * uc + vc * vc + mean_z)
     residual = szz - n * mean_z * mean_z - 2.0 * (uc * szu + vc * szv)
-    circle_rms = np.sqrt(np.maximum(residual, 0.0) / n) / (2.0 * radius)
-    round_ = radius <= MAX_RADIUS               # False also for NaN (collinear: det = 0)
-    np.copyto(out[:, 3], MAX_RADIUS)
-    np.copyto(out[:, 3], radius, where=round_)
-    np.copyto(out[:, 4], line_rms)
-    np.copyto(out[:, 4], circle_rms, where=round_)
+    circle_rms = math.sqrt(_at_least(residual, 0.0) / n) / (2.0 * radius)
+    f[2] = line_rms
+    if radius <= MAX_RADIUS:                    # False also for NaN (collinear: det = 0)
+        f[3], f[4] = radius, circle_rms
+    else:
+        f[3], f[4] = MAX_RADIUS, line_rms
     # Boundary length over the width, and the spread of the steps over their mean.
-    safe_width = np.maximum(width, _EPS)
+    safe_width = _at_least(width, _EPS)
     mean_step = length / (n - 1.0)
-    np.divide(length, safe_width, out=out[:, 5])
-    np.divide(np.sqrt(np.maximum(length_sq / (n - 1.0) - mean_step * mean_step, 0.0)),
-              np.maximum(mean_step, _EPS), out=out[:, 6])
+    f[5] = length / safe_width
+    f[6] = math.sqrt(_at_least(length_sq / (n - 1.0) - mean_step * mean_step, 0.0)) / \
+        _at_least(mean_step, _EPS)
     # Bulge: n / (n - 1) times the distance of the centroid from the chord (cross(chord,
     # c - first) / width), positive on the scanner's side of the chord, over the width.
-    e = centroid - first
-    side = chord[:, 0] * e[:, 1] - chord[:, 1] * e[:, 0]
-    towards = chord[:, 1] * first[:, 0] - chord[:, 0] * first[:, 1]   # scanner's side
-    np.copysign(side, side * towards, out=side)
-    np.divide(side * (n / (n - 1.0)), safe_width * safe_width, out=out[:, 7])
-    _context(scan, valid, beams, r, starts, ends, out[:, 9:])
-    return out, centroid
+    side = chx * (cy - py[a]) - chy * (cx - px[a])
+    towards = chy * px[a] - chx * py[a]                          # the scanner's side
+    f[7] = math.copysign(side, side * towards) * (n / (n - 1.0)) / (safe_width * safe_width)
 
 
-def _context(scan, valid, beams, r, starts, ends, out) -> None:
-    """Occlusion and clearance of both ends of every cluster into ``out`` (k, 5): occluded
-    ends, clear_min, clear_max, the clearance of the first end and of the last end.
+@jit.kernel
+def _reduceat(values, a, b):
+    """``np.add.reduceat``'s sum of ``values[a:b + 1]``: the first value plus numpy's
+    pairwise sum of the others."""
+    return values[a] + pairwise_sum(values, a + 1, b - a)
 
-    An end's window is the beams within CLEARANCE beside it (at its range, at most
-    MAX_WINDOW_ANGLE); all windows are reduced by one ``np.minimum.reduceat``.
-    """
-    k = starts.size
-    n = scan.n_beams
-    da = abs(float(scan.angle_increment))
-    both = np.concatenate((starts, ends))
-    b = beams[both]
-    r_ends = r[both]
-    span = np.minimum(np.ceil(CLEARANCE / (r_ends * da)), np.ceil(MAX_WINDOW_ANGLE / da))
-    span = span.astype(np.intp)
-    lo = b - span
-    hi = b + span
-    lo[k:] = b[k:] + 1                         # after the last end
-    hi[:k] = b[:k] - 1                         # before the first end
-    np.maximum(lo, 0, out=lo)
-    np.minimum(hi, n - 1, out=hi)
-    free = np.empty(n + 1)                     # ranges, inf where no return
-    free[:n] = np.inf
-    np.copyto(free[:n], scan.ranges, where=valid)
-    free[n] = np.inf
-    nearest = _window_min(free, lo, hi)
-    nearest -= r_ends
-    np.clip(nearest, -MAX_CLEAR, MAX_CLEAR, out=nearest)   # inf (nothing there) -> MAX_CLEAR
-    c0, c1 = nearest[:k], nearest[k:]
-    np.add(c0 < 0.0, c1 < 0.0, out=out[:, 0], dtype=np.float64)
-    np.minimum(c0, c1, out=out[:, 1])
-    np.maximum(c0, c1, out=out[:, 2])
-    out[:, 3] = c0
-    out[:, 4] = c1
+
+@jit.kernel
+def _at_least(x, low):
+    """``np.maximum(x, low)`` (a NaN stays NaN)."""
+    return low if x < low else x
+
+
+@jit.kernel
+def _window_min(values, lo, hi):
+    """``min(values[lo:hi + 1])``, inf when the window is empty (hi < lo)."""
+    out = np.inf
+    for i in range(lo, hi + 1):
+        out = min(out, values[i])
+    return out
 
 
 def window_min(values: np.ndarray, lo, hi) -> np.ndarray:
     """``min(values[lo[i]:hi[i] + 1])`` for each i (``0 <= lo <= values.size``,
     ``-1 <= hi < values.size``), inf where the window is empty (hi < lo)."""
-    lo = np.asarray(lo, dtype=np.intp)
-    hi = np.asarray(hi, dtype=np.intp)
-    padded = np.empty(values.size + 1)
-    padded[:-1] = values
-    padded[-1] = np.inf
-    return _window_min(padded, lo, hi)
-
-
-def _window_min(padded: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """:func:`window_min` on values whose last element is an inf sentinel: one
-    ``np.minimum.reduceat`` over the interleaved window bounds."""
-    if lo.size == 0:
-        return np.zeros(0)
-    bounds = np.empty(2 * lo.size, dtype=np.intp)
-    bounds[0::2] = lo
-    bounds[1::2] = hi + 1
-    out = np.minimum.reduceat(padded, bounds)[0::2]
-    out[hi < lo] = np.inf
-    return out
+    values = np.asarray(values, dtype=float)
+    return np.array([_window_min(values, int(a), int(b)) for a, b in zip(lo, hi)])

@@ -33,26 +33,28 @@ import logging
 import math
 import re
 import time
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from laser_tracker.core.blobs import BlobConfig, Blobs, scan_segments, segment
+from laser_tracker.core import jit
+from laser_tracker.core.blobs import BlobConfig, Blobs, segment
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
-                                           changed_with_history, difference_map, pose_quality,
-                                           pose_trusted, relative_motion)
-from laser_tracker.core.geometry import pairwise_distances, transform_points
+                                           changed_with_history, difference_map,
+                                           people_in_odometry, pose_quality, pose_trusted)
 from laser_tracker.core.egomotion import (SOURCE_ICP, SOURCE_ODOMETRY, SOURCE_PARTIAL,
                                           EgoMotionConfig, EgoMotionEstimate,
                                           EgoMotionEstimator)
-from laser_tracker.core.grid import FREE, GridBuilder, GridConfig, lookup_stack, transform_grid
+from laser_tracker.core.grid import (GridBuilder, GridConfig, GridHistory, relative_motion,
+                                     transform_grid)
 from laser_tracker.core.head import HeadCommand, HeadConfig, HeadPointer
 from laser_tracker.core.hypotheses import FrameResult, HypothesisConfig, HypothesisTracker
 from laser_tracker.core.kalman import KalmanConfig
-from laser_tracker.core.person_detector import (DetectorModelError, PersonDetector,
+from laser_tracker.core.person_detector import (DetectorModelError, LegClassifier,
+                                                PersonDetections, PersonDetector,
                                                 PersonDetectorConfig)
 from laser_tracker.core.scan import Scan
+from laser_tracker.core.segmentation import SegmentConfig, segments_of
 from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
 from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, EventLog, OdometryWait,
                                        StreamRules)
@@ -270,17 +272,19 @@ class Detector:
                  difference: DifferenceConfig | None = None,
                  blobs: BlobConfig | None = None,
                  persons: PersonDetectorConfig | None = None, frame_id: str = 'odom',
-                 times: dict | None = None):
+                 times: dict | None = None, segments: SegmentConfig | None = None):
         self.times = times   # stage -> seconds, accumulated when given (profiling)
         self.events = EventLog(log, 'detection: ')
         self.frame_id = frame_id
         self.grid_config = grid or GridConfig()
         self.difference_config = difference or DifferenceConfig()
         self.blob_config = blobs or BlobConfig()
+        self.segment_config = segments or SegmentConfig()
         self.rules = StreamRules(self.difference_config.max_gap)
         self.skipped: str | None = None
         self._load_person_detector(persons or PersonDetectorConfig())
         self._build()
+        jit.compiled('detection kernels', _exercise_detection)
 
     def _load_person_detector(self, config: PersonDetectorConfig) -> None:
         self.person_config = config
@@ -288,7 +292,7 @@ class Detector:
         if not config.enabled:
             return
         try:
-            self.person_detector = PersonDetector(config)
+            self.person_detector = PersonDetector(config, segments=self.segment_config)
         except DetectorModelError as exc:
             self.events.note('person detector off', f'{exc}; the motion method runs alone')
 
@@ -299,8 +303,7 @@ class Detector:
         self.reset()
 
     def reset(self) -> None:
-        # Earlier grids, newest first: (GridFrame, scanner pose, stamp).
-        self.history: deque = deque(maxlen=self.depth)
+        self.history = GridHistory(self.builder, self.depth)   # earlier grids, newest first
         d = self.difference_config
         self.background = StaticBackground(self.grid_config.resolution, d) \
             if d.static_time > 0 else None
@@ -308,14 +311,21 @@ class Detector:
 
     @property
     def previous(self):
-        return self.history[0][0] if self.history else None
+        return self.history[0] if len(self.history) else None
 
     def reconfigure(self, grid: GridConfig, difference: DifferenceConfig,
-                    blobs: BlobConfig, persons: PersonDetectorConfig | None = None) -> None:
+                    blobs: BlobConfig, persons: PersonDetectorConfig | None = None,
+                    segments: SegmentConfig | None = None) -> None:
         """New parameters from the next scan; a new grid geometry or memory depth drops the
-        grid history; a new person-detector configuration reloads it."""
-        if persons is not None and persons != self.person_config:
+        grid history; a new person-detector or segment configuration reloads the person
+        detector."""
+        reload = segments is not None and segments != self.segment_config
+        if segments is not None:
+            self.segment_config = segments
+        if persons is not None and (reload or persons != self.person_config):
             self._load_person_detector(persons)
+        elif reload:
+            self._load_person_detector(self.person_config)
         old = self.difference_config
         rebuild = (grid != self.grid_config or difference.memory != old.memory
                    or difference.max_history != old.max_history
@@ -352,10 +362,10 @@ class Detector:
             self.reset()
         self.rules.accept(scan.stamp)
         scan = _without_body(scan, pose.body)
-        det = self._detect(scan, np.asarray(pose.pose, dtype=float), want_grids,
-                           pose.quality)
-        self._people_and_segments(scan, np.asarray(pose.pose, dtype=float), det)
-        self._add_to_background(np.asarray(pose.pose, dtype=float), float(scan.stamp), det)
+        at = np.asarray(pose.pose, dtype=float)
+        det = self._detect(scan, at, want_grids, pose.quality)
+        self._people_and_segments(scan, at, det)
+        self._add_to_background(at, float(scan.stamp), det)
         det.blobs.frame_id = pose.frame_id or self.frame_id
         det.blobs.stamp_ns = scan.stamp_ns
         det.blobs.restarted = bool(pose.quality.restarted)
@@ -369,24 +379,15 @@ class Detector:
         b = det.blobs
         if self.person_detector is not None:
             people = self.person_detector.detect(scan)
-            b.persons = transform_points(pose, people.xy)
-            b.person_confidence = people.confidence
-            b.person_free, b.person_static = self._walked_in(people, pose, float(scan.stamp))
-            legs = people.legs
-            pair = legs[:, 1] >= 0
-            spread = np.full(people.count, np.nan)
-            if pair.any():
-                d = people.leg_xy[legs[pair, 0]] - people.leg_xy[legs[pair, 1]]
-                spread[pair] = np.hypot(d[:, 0], d[:, 1])
-            b.person_spread = spread
-            local = people.leg_xy
-            b.segment_leg = people.leg_probability
             det.persons = people
-        else:
-            c = self.blob_config
-            local = scan_segments(scan.points(), c.segment_jump, c.segment_max_width)
-            b.segment_leg = np.zeros(local.shape[0])
-        b.segments = transform_points(pose, local)
+            b.person_confidence = people.confidence
+            b.segment_leg = people.leg_probability
+        else:                                       # no people: the segments alone
+            people = PersonDetections.empty()
+            people.leg_xy = segments_of(scan, self.segment_config).xy
+            b.segment_leg = np.zeros(people.leg_xy.shape[0])
+        b.persons, b.person_free, b.person_static, b.person_spread, b.segments = \
+            people_in_odometry(people, pose, float(scan.stamp), self.history, self.background)
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
 
@@ -394,45 +395,9 @@ class Detector:
         """This scan's end points join the static background, except those of what moves
         (within ``MOVER_RADIUS`` of a motion blob): people who keep passing the same spot (a
         corridor) do not make it static."""
-        if self.background is None:
-            return
-        frame = self.history[0][0]
-        points = frame.points
-        b = det.blobs
-        movers = b.local()
-        if movers.shape[0] and points.shape[0]:
-            near = (pairwise_distances(points, movers) <= MOVER_RADIUS).any(axis=1)
-            points = points[~near]
-        self.background.add(transform_points(pose, points), stamp)
-
-    def _walked_in(self, people, pose: np.ndarray, stamp: float):
-        """Per person: (free, static): were the places of all its legs seen FREE in an
-        earlier grid and are they not static background (someone who walked in), and are all
-        of them static background (where something has long stood)?"""
-        n = people.count
-        legs = people.legs
-        used = np.unique(legs[legs >= 0])
-        if n == 0 or used.size == 0:
-            return np.zeros(n, bool), np.zeros(n, bool)
-        xy = people.leg_xy[used]
-        static = self.background.static(transform_points(pose, xy), stamp) \
-            if self.background is not None else np.zeros(used.size, bool)
-        history = list(self.history)[1:]          # [0] is this scan's own grid
-        free = np.zeros(used.size, bool)
-        if history:
-            res, cells = self.grid_config.resolution, self.builder.cells
-            ij = np.floor(xy / res + cells / 2.0)
-            inside = ((ij >= 0) & (ij < cells)).all(axis=1)
-            motions = [relative_motion(h[1], pose) for h in history]
-            seen = lookup_stack(self.builder.stack, [h[0].index for h in history], motions,
-                                res, np.clip(ij, 0, cells - 1))
-            free = (seen == FREE).any(axis=0) & inside & ~static
-
-        def per_person(leg_value, missing):
-            value = np.full(people.leg_xy.shape[0], missing)
-            value[used] = leg_value
-            return np.where(legs >= 0, value[np.maximum(legs, 0)], missing).all(axis=1)
-        return per_person(free, True), per_person(static, True)
+        if self.background is not None:
+            self.background.add(self.history[0].points, stamp, pose, det.blobs.xy,
+                                MOVER_RADIUS)
 
     def _detect(self, scan: Scan, pose: np.ndarray, want_grids: bool,
                 quality: PoseQuality) -> Detection:
@@ -440,34 +405,23 @@ class Detector:
         cells = self.builder.cells
         times = self.times
         t0 = time.perf_counter() if times is not None else 0.0
-        frame = self.builder.build(scan)
-        history = list(self.history)
-        self.history.appendleft((frame, pose, float(scan.stamp)))
-        previous = history[0][0] if history else None
+        stamp = float(scan.stamp)
+        frame = self.builder.build(scan, pose)
+        history = self.history
+        previous = history[0] if len(history) else None
         gated = not pose_trusted(quality, self.difference_config)
         if previous is None or gated:
             det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
                             gated=gated and previous is not None)
             if want_grids:
-                det.grid = frame.grid.copy()
-                if previous is not None:
-                    det.previous = transform_grid(previous.grid,
-                                                  relative_motion(history[0][1], pose), res)
-                    det.difference = difference_map(det.grid, det.previous)  # not reported
+                self._grids(det, frame, previous, pose)
+            history.push(frame)
             if times is not None:
                 times['grid'] += time.perf_counter() - t0
             return det
-        motion = relative_motion(history[0][1], pose)
         t1 = time.perf_counter() if times is not None else 0.0
-        changed = changed_with_history(frame, float(scan.stamp), history, pose,
-                                       self.builder.stack, res, cells,
-                                       self.difference_config)
-        background = self.background
-        if background is not None and changed.any():
-            rows = np.flatnonzero(changed)
-            world = transform_points(pose, frame.points[rows])
-            changed[rows[background.static(world, float(scan.stamp))]] = False
-        d_cells = np.unique(frame.flat[changed]) if changed.any() else frame.flat[:0]
+        d_cells = changed_with_history(frame, stamp, pose, history, self.difference_config,
+                                       self.background)
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:
             blobs = segment(d_cells, cells, res, pose, scan.stamp, self.blob_config,
@@ -481,11 +435,20 @@ class Detector:
             times['blobs'] += t3 - t2
         det = Detection(blobs, int(d_cells.size))
         if want_grids:
-            det.grid = frame.grid.copy()
-            det.previous = transform_grid(previous.grid, motion, res)
-            det.difference = difference_map(det.grid, det.previous)
+            self._grids(det, frame, previous, pose)
             det.changed_cells = d_cells.copy()
+        history.push(frame)
         return det
+
+    def _grids(self, det: Detection, frame, previous, pose: np.ndarray) -> None:
+        """The whole grids of ``det`` (on request): this scan's, the previous one in this
+        scan's frame, and Eq. 1 between them."""
+        det.grid = frame.grid.copy()
+        if previous is not None:
+            motion = relative_motion(self.builder.meta[previous.index], pose)
+            det.previous = transform_grid(previous.grid, motion,
+                                          self.grid_config.resolution)
+            det.difference = difference_map(det.grid, det.previous)
 
 
 # -------------------------------------------------------------------------------- tracking
@@ -602,6 +565,32 @@ class Head:
                              'tracks')
             return None
         return self.pointer.update(stamp, self.pose.pose, tracks)
+
+
+def _exercise_detection() -> None:
+    """Detection on a few synthetic scans (a box moving in a room, beams without a return),
+    so that every detection kernel is compiled (or loaded from the cache) for the argument
+    types of real scans before the first one."""
+    angles = np.linspace(-1.5, 1.5, 61)
+    detector = Detector(persons=PersonDetectorConfig(enabled=False))
+    pose = StampedPose(stamp=0.0, pose=np.zeros(3), motion=np.zeros(3),
+                       motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
+                       quality=PoseQuality())
+    for k in range(3):
+        ranges = np.where(np.abs(angles) < 1.2, 3.0 / np.cos(angles), np.inf)
+        ranges[20 + 5 * k:24 + 5 * k] = 1.5
+        ranges[0] = np.nan
+        scan = Scan(stamp=0.1 * k, ranges=ranges, angle_min=-1.5, angle_increment=0.05,
+                    range_min=0.05, range_max=8.0)
+        pose.stamp = scan.stamp
+        detector.update(scan, pose, want_grids=k == 2)
+    frame = detector.history[0]
+    segment(np.unique(frame.flat), detector.builder.cells, detector.grid_config.resolution,
+            pose.pose, pose.stamp, detector.blob_config, frame.points)
+    one_leaf = LegClassifier(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 2)), 0.0)
+    people = PersonDetector(PersonDetectorConfig(), one_leaf).detect(scan)
+    people.legs = np.array([[0, -1]])
+    people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background)
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:

@@ -9,9 +9,9 @@ scan in the odometry frame, stamped exactly as the scan.
 
 The node is convert -> ``core.stages.Detector`` -> convert; the stage owns the stream rules
 (time going backwards, duplicates, gaps, a restarted pose chain) and the pose gate.
-Parameters: ``grid.*``, ``difference.*``, ``blobs.*``, ``person_detector.*`` (changeable at
-run time) and ``status_topic`` (read-only). A person-detector model that cannot be loaded is
-a warning: the motion method keeps running.
+Parameters: ``grid.*``, ``difference.*``, ``blobs.*``, ``segments.*``, ``person_detector.*``
+(changeable at run time) and ``status_topic`` (read-only). A person-detector model that
+cannot be loaded is a warning: the motion method keeps running.
 """
 from __future__ import annotations
 
@@ -34,7 +34,8 @@ class DetectionNode(Node):
         super().__init__('detection', **kwargs)
         self.params = LiveParameters(self, 'detection', self.apply_parameters)
         s = self.params.sections
-        self.stage = Detector(s['grid'], s['difference'], s['blobs'], s['person_detector'])
+        self.stage = Detector(s['grid'], s['difference'], s['blobs'], s['person_detector'],
+                              segments=s['segments'])
         self.factory = ros_factory()
         status_topic = s[''].status_topic
         streams = ('scan', 'pose', 'status') if status_topic else ('scan', 'pose')
@@ -56,7 +57,7 @@ class DetectionNode(Node):
 
     def apply_parameters(self, sections: dict) -> None:
         self.stage.reconfigure(sections['grid'], sections['difference'], sections['blobs'],
-                               sections['person_detector'])
+                               sections['person_detector'], sections['segments'])
 
     def on_scan(self, msg: LaserScan) -> None:
         self.scan_watch.seen()

@@ -137,13 +137,11 @@ def _crop(scan: Scan, fov: float) -> Scan:
 def time_detector(detector: PersonDetector, scans: list[Scan], repeat: int = 3) -> dict:
     """Per-scan wall time of ``detect`` and of its stages, segmentation with features and
     tree inference (fastest of ``repeat`` passes per scan; garbage collection paused)."""
-    from laser_tracker.core.segmentation import segment
+    from laser_tracker.core.segmentation import segments_of
 
-    c = detector.config
     stages = {
         'detect': detector.detect,
-        'segment': lambda s: segment(s, c.jump_distance, c.min_points, c.max_cluster_width,
-                                     c.max_range),
+        'segment': lambda s: segments_of(s, detector.segments, detector.config.max_range),
     }
     features = [stages['segment'](s).features for s in scans]
     for s in scans[:50]:

@@ -54,7 +54,7 @@ import numpy as np
 
 from laser_tracker.core.person_detector import LegClassifier, save_model
 from laser_tracker.core.scan import Scan, ScanError
-from laser_tracker.core.segmentation import FEATURE_NAMES, FEATURE_SET, segment
+from laser_tracker.core.segmentation import FEATURE_NAMES, FEATURE_SET, SegmentConfig, segment
 from laser_tracker.errors import InputFileError, LaserTrackerError
 
 log = logging.getLogger(__name__)
@@ -85,12 +85,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--match-radius', type=float, default=0.1,
                         help='a cluster whose centre lies within this distance (m) of a '
                         'label is a leg (default 0.1)')
-    parser.add_argument('--jump-distance', type=float, default=0.13,
-                        help='cluster jump distance, m (default 0.13)')
-    parser.add_argument('--min-points', type=int, default=3,
-                        help='fewest points of a cluster (default 3)')
-    parser.add_argument('--max-width', type=float, default=1.0,
-                        help='widest cluster classified, m (default 1.0)')
+    seg = SegmentConfig()
+    parser.add_argument('--jump-distance', type=float, default=seg.jump_distance,
+                        help='cluster jump distance, m (default segments.jump_distance, '
+                        f'{seg.jump_distance})')
+    parser.add_argument('--min-points', type=int, default=seg.min_points,
+                        help=f'fewest points of a cluster (default {seg.min_points})')
+    parser.add_argument('--max-width', type=float, default=seg.max_width,
+                        help=f'widest cluster classified, m (default {seg.max_width})')
     parser.add_argument('--augment-noise', default='', metavar='SIGMAS',
                         help='comma-separated range noise levels (m): each adds a copy of '
                         'the training scans with Gaussian noise of that standard deviation '
