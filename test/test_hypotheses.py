@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from laser_tracker.core.blobs import Blobs
+from laser_tracker.core.detections import Blobs, Detections, People, Segments
 from laser_tracker.core.hypotheses import HypothesisConfig, HypothesisTracker
 from laser_tracker.core.kalman import KalmanConfig
 
@@ -18,8 +18,9 @@ DT = 0.2
 def frame(t, *points, structure=None):
     xy = np.array(points, dtype=float).reshape(-1, 2)
     s = np.full(xy.shape[0], np.nan) if structure is None else np.asarray(structure, float)
-    return Blobs(stamp=t, origin=np.zeros(3), xy=xy, cells=np.full(xy.shape[0], 2),
-                 extent=np.full(xy.shape[0], 0.1), structure=s)
+    return Detections(stamp=t, origin=np.zeros(3),
+                      blobs=Blobs(xy=xy, cells=np.full(xy.shape[0], 2),
+                                  extent=np.full(xy.shape[0], 0.1), structure=s))
 
 
 def walk(tracker, n, start=(1.0, 0.0), v=(1.0, 0.0), t0=0.0):
@@ -182,13 +183,14 @@ def test_bad_blobs_are_dropped_with_a_warning(caplog):
     assert 'not finite' in caplog.text
 
 
-def people(t, *persons, confidence=0.9, segments=(), blobs_xy=(), free=True):
-    b = frame(t, *blobs_xy)
-    b.persons = np.array(persons, float).reshape(-1, 2)
-    b.person_confidence = np.full(b.persons.shape[0], confidence)
-    b.person_free = np.full(b.persons.shape[0], free)
-    b.segments = np.array(segments, float).reshape(-1, 2)
-    return b
+def people(t, *persons, confidence=0.9, segments=(), blobs_xy=(), free=True, leg=1.0):
+    d = frame(t, *blobs_xy)
+    xy = np.array(persons, float).reshape(-1, 2)
+    d.people = People(xy=xy, confidence=np.full(xy.shape[0], confidence),
+                      free=np.full(xy.shape[0], free))
+    at = np.array(segments, float).reshape(-1, 2)
+    d.segments = Segments(xy=at, leg=np.full(at.shape[0], leg))
+    return d
 
 
 def test_a_standing_person_detected_by_shape_is_tracked_and_not_moving():
@@ -272,13 +274,11 @@ def test_a_flickering_blob_still_creates_its_hypothesis_with_a_creation_window()
 def person_frame(t, xy, spread, free=False):
     """A person detection alone (no motion blob) standing at ``xy`` with its legs
     ``spread`` apart."""
-    b = frame(t)
-    b.persons = np.array([xy], dtype=float)
-    b.person_confidence = np.array([0.9])
-    b.person_free = np.array([free])
-    b.person_spread = np.array([spread])
-    b.person_static = np.array([False])
-    return b
+    d = frame(t)
+    d.people = People(xy=np.array([xy], dtype=float), confidence=np.array([0.9]),
+                      free=np.array([free]), spread=np.array([spread]),
+                      static=np.array([False]))
+    return d
 
 
 @pytest.mark.parametrize('gait_spread, confirmed', [(0.0, False), (0.1, True)])
@@ -363,9 +363,7 @@ def test_a_person_missed_by_the_detector_is_held_by_a_leg_like_segment(leg, keep
         r = tr.update(people(k * DT, (2.0, 1.0)))
     (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
     for k in range(8, 20):
-        b = people(k * DT, segments=[(2.05, 1.0)])
-        b.segment_leg = np.array([leg])
-        r = tr.update(b)
+        r = tr.update(people(k * DT, segments=[(2.05, 1.0)], leg=leg))
     assert (tid in r.hypotheses.track_id.tolist()) is keeps
 
 
@@ -379,8 +377,7 @@ def test_a_standing_person_is_not_pulled_off_by_a_blob_beyond_person_blob_gate(b
     tr = HypothesisTracker(HypothesisConfig(person_blob_gate=blob_gate), KalmanConfig())
     for k in range(12):
         if k == 8:
-            b = people(k * DT, segments=[(2.0, 1.0)], blobs_xy=[(2.6, 1.0)])
-            b.segment_leg = np.array([0.5])
+            b = people(k * DT, segments=[(2.0, 1.0)], blobs_xy=[(2.6, 1.0)], leg=0.5)
         else:
             b = people(k * DT, (2.0, 1.0))
         r = tr.update(b)

@@ -19,18 +19,19 @@ cells, tracked as though it were the whole target. Each blob carries:
 Visible surfaces are runs of consecutive scan end points (beam order) closer than
 ``surface_gap``; a blob belongs to the surface of the end point nearest its centroid.
 
-:class:`Blobs` is the whole interface between detection and tracking: plain arrays that
-``laser_tracker.core.pipeline`` documents as a MarkerArray schema.
+The blobs are :class:`laser_tracker.core.detections.Blobs`, the motion part of what detection
+tells tracking (``core.detections.Detections``).
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
 from laser_tracker.config import param
+from laser_tracker.core.detections import Blobs
 
 log = logging.getLogger(__name__)
 
@@ -76,60 +77,6 @@ class BlobConfig:
                                         'with a direction.', min=1.0, max=100.0)
 
 
-@dataclass
-class Blobs:
-    """What detection tells tracking about one scan (plain arrays, odometry frame):
-
-    * the motion blobs of the difference map (paper Sec. 6): ``xy``, ``cells``, ``extent``,
-      ``structure``;
-    * the people found by the shape of their legs (``persons``, ``person_confidence``,
-      ``person_free``: where they stand was seen free before, so they walked in;
-      ``person_spread``: the distance between the two legs, NaN for a lone leg;
-      ``person_static``: all its legs on static background), when the person detector runs;
-    * the scan's compact segments (``segments``: centroids of the jump-distance clusters
-      narrower than a metre, with their leg probability ``segment_leg`` when the person
-      detector runs, else 0), occupied space that keeps a stopped object's track alive.
-    """
-
-    stamp: float
-    origin: np.ndarray                    # (3,) scanner pose x, y, theta in the odometry frame
-    xy: np.ndarray                        # (b, 2) centroids, odometry frame, metres
-    cells: np.ndarray                     # (b,) int
-    extent: np.ndarray                    # (b,) metres
-    structure: np.ndarray                 # (b,) radians (odometry frame, mod pi) or NaN
-    frame_id: str = 'odom'
-    dropped: int = field(default=0)       # blobs dropped by max_blobs
-    restarted: bool = False               # the pose chain restarted here: tracks are void
-    stamp_ns: int | None = None           # the scan's exact stamp (integer ns), when known
-    persons: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    person_confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    person_free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    person_spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    person_static: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    segment_leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def count(self) -> int:
-        return int(self.xy.shape[0])
-
-    def __len__(self) -> int:
-        return self.count
-
-    @classmethod
-    def empty(cls, stamp: float, origin, frame_id: str = 'odom') -> Blobs:
-        return cls(stamp=float(stamp), origin=np.asarray(origin, dtype=float),
-                   xy=np.zeros((0, 2)), cells=np.zeros(0, dtype=np.int64),
-                   extent=np.zeros(0), structure=np.zeros(0), frame_id=frame_id)
-
-    def local(self) -> np.ndarray:
-        """Centroids in the scanner frame (for figures)."""
-        x, y, t = self.origin
-        c, s = np.cos(t), np.sin(t)
-        d = self.xy - np.array([x, y])
-        return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
-
-
 def label_cells(flat: np.ndarray, cells: int) -> tuple[int, np.ndarray, list]:
     """4-connected components of the cells ``flat`` (sorted unique flat indices into a
     cells x cells grid, as ``np.unique`` returns them).
@@ -163,7 +110,7 @@ def segment(changed: np.ndarray, cells: int, resolution: float, origin, stamp: f
     origin = np.asarray(origin, dtype=float)
     count, labels, boxes = label_cells(changed, cells)
     if count == 0:
-        return Blobs.empty(stamp, origin)
+        return Blobs.empty()
     ix, iy = np.divmod(changed, cells)
     n = np.bincount(labels, minlength=count)
     half = cells / 2.0 - 0.5
@@ -218,8 +165,8 @@ def segment(changed: np.ndarray, cells: int, resolution: float, origin, stamp: f
     xy = local @ np.array([[c, s], [-s, c]])
     xy[:, 0] += x
     xy[:, 1] += y
-    return Blobs(stamp=float(stamp), origin=origin, xy=xy, cells=n.astype(np.int64),
-                 extent=extent, structure=structure, dropped=dropped)
+    return Blobs(xy=xy, cells=n.astype(np.int64), extent=extent, structure=structure,
+                 dropped=dropped)
 
 
 class _Surfaces:

@@ -7,7 +7,7 @@ stage          input -> output                             algorithm (paper sect
 ``Detector``   scan + its pose -> :class:`Detection`        ``grid``, ``difference``,
                                                            ``blobs`` (Sec. 5-6),
                                                            ``person_detector``
-``Tracker``    blobs -> ``hypotheses.FrameResult``          ``hypotheses``, ``kalman``
+``Tracker``    detections -> ``hypotheses.FrameResult``     ``hypotheses``, ``kalman``
                                                            (Sec. 7-9)
 ``Head``       tracks + pose -> ``head.HeadCommand``        ``head`` (Sec. 10.3)
 =============  ==========================================  =================================
@@ -38,11 +38,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from laser_tracker.core.blobs import BlobConfig, Blobs, scan_segments, segment
+from laser_tracker.core.blobs import BlobConfig, scan_segments, segment
+from laser_tracker.core.detections import Blobs, Detections, People, Segments
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map, pose_quality,
                                            pose_trusted, relative_motion)
-from laser_tracker.core.geometry import pairwise_distances, transform_points
+from laser_tracker.core.geometry import pairwise_distances, points_in_frame, transform_points
 from laser_tracker.core.egomotion import (SOURCE_ICP, SOURCE_ODOMETRY, SOURCE_PARTIAL,
                                           EgoMotionConfig, EgoMotionEstimate,
                                           EgoMotionEstimator)
@@ -244,7 +245,7 @@ class EgoMotion:
 class Detection:
     """Detection output for one scan; grids only when requested."""
 
-    blobs: Blobs
+    detections: Detections
     changed: int                       # cells in the difference map
     grid: np.ndarray | None = None
     previous: np.ndarray | None = None     # previous grid in the current scanner frame
@@ -356,9 +357,9 @@ class Detector:
                            pose.quality)
         self._people_and_segments(scan, np.asarray(pose.pose, dtype=float), det)
         self._add_to_background(np.asarray(pose.pose, dtype=float), float(scan.stamp), det)
-        det.blobs.frame_id = pose.frame_id or self.frame_id
-        det.blobs.stamp_ns = scan.stamp_ns
-        det.blobs.restarted = bool(pose.quality.restarted)
+        det.detections.frame_id = pose.frame_id or self.frame_id
+        det.detections.stamp_ns = scan.stamp_ns
+        det.detections.restarted = bool(pose.quality.restarted)
         if det.gated:
             self.events.note('gated', 'ego-motion pose not trusted: no blobs', logging.DEBUG)
         return det
@@ -366,27 +367,27 @@ class Detector:
     def _people_and_segments(self, scan: Scan, pose: np.ndarray, det: Detection) -> None:
         """People (by leg shape) and compact segments of ``scan``, odometry frame."""
         t0 = time.perf_counter() if self.times is not None else 0.0
-        b = det.blobs
+        d = det.detections
         if self.person_detector is not None:
             people = self.person_detector.detect(scan)
-            b.persons = transform_points(pose, people.xy)
-            b.person_confidence = people.confidence
-            b.person_free, b.person_static = self._walked_in(people, pose, float(scan.stamp))
+            free, static = self._walked_in(people, pose, float(scan.stamp))
             legs = people.legs
             pair = legs[:, 1] >= 0
             spread = np.full(people.count, np.nan)
             if pair.any():
-                d = people.leg_xy[legs[pair, 0]] - people.leg_xy[legs[pair, 1]]
-                spread[pair] = np.hypot(d[:, 0], d[:, 1])
-            b.person_spread = spread
+                gap = people.leg_xy[legs[pair, 0]] - people.leg_xy[legs[pair, 1]]
+                spread[pair] = np.hypot(gap[:, 0], gap[:, 1])
+            d.people = People(xy=transform_points(pose, people.xy),
+                              confidence=people.confidence, free=free, spread=spread,
+                              static=static)
             local = people.leg_xy
-            b.segment_leg = people.leg_probability
+            leg = people.leg_probability
             det.persons = people
         else:
             c = self.blob_config
             local = scan_segments(scan.points(), c.segment_jump, c.segment_max_width)
-            b.segment_leg = np.zeros(local.shape[0])
-        b.segments = transform_points(pose, local)
+            leg = np.zeros(local.shape[0])
+        d.segments = Segments(xy=transform_points(pose, local), leg=leg)
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
 
@@ -398,8 +399,7 @@ class Detector:
             return
         frame = self.history[0][0]
         points = frame.points
-        b = det.blobs
-        movers = b.local()
+        movers = points_in_frame(pose, det.detections.blobs.xy)
         if movers.shape[0] and points.shape[0]:
             near = (pairwise_distances(points, movers) <= MOVER_RADIUS).any(axis=1)
             points = points[~near]
@@ -446,7 +446,7 @@ class Detector:
         previous = history[0][0] if history else None
         gated = not pose_trusted(quality, self.difference_config)
         if previous is None or gated:
-            det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
+            det = Detection(Detections(float(scan.stamp), pose, frame_id=self.frame_id), 0,
                             gated=gated and previous is not None)
             if want_grids:
                 det.grid = frame.grid.copy()
@@ -473,13 +473,14 @@ class Detector:
             blobs = segment(d_cells, cells, res, pose, scan.stamp, self.blob_config,
                             frame.points)
         else:
-            blobs = Blobs.empty(scan.stamp, pose, self.frame_id)
+            blobs = Blobs.empty()
         if times is not None:
             t3 = time.perf_counter()
             times['grid'] += t1 - t0
             times['difference'] += t2 - t1
             times['blobs'] += t3 - t2
-        det = Detection(blobs, int(d_cells.size))
+        det = Detection(Detections(float(scan.stamp), pose, blobs, frame_id=self.frame_id),
+                        int(d_cells.size))
         if want_grids:
             det.grid = frame.grid.copy()
             det.previous = transform_grid(previous.grid, motion, res)
@@ -492,7 +493,7 @@ class Detector:
 
 
 class Tracker:
-    """Stage: blobs -> movement hypotheses (paper Sec. 7-9).
+    """Stage: detections -> movement hypotheses (paper Sec. 7-9).
 
     Stream rules: an invalid or duplicate stamp is skipped (a second publisher on the blobs
     topic changes nothing); time going backwards, a gap longer than ``hypotheses.max_gap``
@@ -533,22 +534,23 @@ class Tracker:
         stamp = self.last.stamp if self.last is not None else math.nan
         return self.hypotheses.report(stamp)
 
-    def update(self, blobs: Blobs) -> FrameResult | None:
+    def update(self, detections: Detections) -> FrameResult | None:
         self.skipped = None
-        verdict = self.rules.screen(float(blobs.stamp), 'blobs', self.events)
+        stamp = float(detections.stamp)
+        verdict = self.rules.screen(stamp, 'blobs', self.events)
         if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
             return None
         if verdict == BACKWARDS:
-            self.reset(f'time went backwards ({self.rules.last:.3f} -> {blobs.stamp:.3f} s)')
+            self.reset(f'time went backwards ({self.rules.last:.3f} -> {stamp:.3f} s)')
         elif verdict == GAP:
-            self.reset(f'gap of {blobs.stamp - self.rules.last:.2f} s > hypotheses.max_gap')
-        elif blobs.restarted and verdict != FIRST:
+            self.reset(f'gap of {stamp - self.rules.last:.2f} s > hypotheses.max_gap')
+        elif detections.restarted and verdict != FIRST:
             self.reset('the ego-motion pose chain restarted')
-        self.rules.accept(float(blobs.stamp))
-        self.last = self.hypotheses.update(blobs)
+        self.rules.accept(stamp)
+        self.last = self.hypotheses.update(detections)
         if self.last.bounded:
-            self.events.note('hypothesis bound reached', f't={blobs.stamp:.3f} s')
+            self.events.note('hypothesis bound reached', f't={stamp:.3f} s')
         return self.last
 
 

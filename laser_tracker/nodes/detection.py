@@ -21,7 +21,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
 from visualization_msgs.msg import MarkerArray
 
-from laser_tracker.conversions import (blobs_to_marker_array, ego_motion_from_msgs,
+from laser_tracker.conversions import (detections_to_marker_array, ego_motion_from_msgs,
                                        restamp_ns, ros_factory, scan_from_msg, stamp_to_ns)
 from laser_tracker.core.stages import Detector
 from laser_tracker.core.stream import StampPairer
@@ -68,8 +68,9 @@ class DetectionNode(Node):
         detection = self.stage.update(items['scan'], pose)
         if detection is None:
             return
-        msg = blobs_to_marker_array(self.factory, detection.blobs)
-        self.blobs_pub.publish(restamp_ns(self.factory, msg, detection.blobs.stamp_ns))
+        found = detection.detections
+        msg = detections_to_marker_array(self.factory, found)
+        self.blobs_pub.publish(restamp_ns(self.factory, msg, found.stamp_ns))
 
 
 def main(args=None) -> None:
