@@ -42,17 +42,20 @@ def wall_penalty(config, weight: np.ndarray, velocity: np.ndarray,
     return np.where(along, weight * c.wall_factor, weight)
 
 
+def _percent(weight: np.ndarray) -> np.ndarray:
+    """``weight`` clipped to 0..100 (``np.clip``'s values, without its overhead)."""
+    return np.minimum(np.maximum(weight, 0.0), 100.0)
+
+
 @dataclass
 class PersonMatch:
     """Person detections against the hypotheses: ``person_of`` (k,) the detection that
-    supports each hypothesis (-1: none), ``fresh`` (p,) the detections that start one."""
+    supports each hypothesis (-1: none; ``supported``: not -1), ``fresh`` (p,) the
+    detections that start one."""
 
     person_of: np.ndarray
+    supported: np.ndarray
     fresh: np.ndarray
-
-    @property
-    def supported(self) -> np.ndarray:
-        return self.person_of >= 0
 
 
 class PersonAssociation(Role):
@@ -78,7 +81,7 @@ class PersonAssociation(Role):
             if frame.xy.shape[0] and c.person_radius > 0 and used.any():
                 frame.without_blobs(pairwise_distances(frame.xy, persons[used]).min(axis=1)
                                     <= c.person_radius)
-        return PersonMatch(person_of, fresh)
+        return PersonMatch(person_of, person_of >= 0, fresh)
 
     def support(self, hyp: Hypotheses, pred: np.ndarray, frame: Frame,
                 match: PersonMatch) -> Hypotheses:
@@ -95,7 +98,7 @@ class PersonAssociation(Role):
         d = np.maximum(np.hypot(*(persons - pred[rows]).T) - c.person_tolerance, 0.0)
         state, P, position = self.filter.correct(out.state, out.P, out.t_state, persons, t)
         out.state, out.P, out.position, out.t_state = state, P, position, t
-        out.weight = np.clip(out.weight + c.w_inc - c.w_dec / c.distance_unit * d, 0.0, 100.0)
+        out.weight = _percent(out.weight + c.w_inc - c.w_dec / c.distance_unit * d)
         out.samples += 1
         out.person_samples += 1
         out.supported, out.stopped = True, False
@@ -133,26 +136,25 @@ class BlobAssociation(Role):
                   people: PersonMatch) -> BlobMatch:
         c = self.config
         k, b = len(hyp), frame.xy.shape[0]
-        dist = pairwise_distances(pred, frame.xy)
-        if b:
-            # Equation 2 (a stopped object held by the scans does not make the motion near
-            # it old).
-            weight = 100.0 - np.maximum(c.blob_radius - dist[~hyp.stopped] /
-                                        c.distance_unit, 0.0).sum(axis=0)
-            weight = np.clip(weight, 0.0, 100.0)
-            new = weight > c.new_blob_threshold
-            if c.new_when_ungated and k:
-                new |= ~(dist <= c.gate).any(axis=0)
-        else:
-            weight, new = np.zeros(0), np.zeros(0, bool)
         by_person = people.supported
+        if not (k and b):                       # no hypothesis lowers a blob's weight
+            weight, pairs = np.full(b, 100.0), np.zeros(0, np.intp)
+            return BlobMatch(np.zeros((k, b)), weight, weight > c.new_blob_threshold, pairs,
+                             pairs, ~by_person)
+        dist = pairwise_distances(pred, frame.xy)
+        # Equation 2 (a stopped object held by the scans does not make the motion near it
+        # old).
+        weight = _percent(100.0 - np.maximum(c.blob_radius - dist[~hyp.stopped] /
+                                             c.distance_unit, 0.0).sum(axis=0))
+        new = weight > c.new_blob_threshold
+        if c.new_when_ungated:
+            new |= ~(dist <= c.gate).any(axis=0)
         gate = (dist <= c.gate) & ~by_person[:, None]
-        if c.person_blob_gate > 0 and k and b:
+        if c.person_blob_gate > 0:
             person_kind = hyp.is_person(c.person_kind_samples)
             gate[person_kind] &= dist[person_kind] <= c.person_blob_gate
         hi, bi = np.nonzero(gate)
-        unsupported = ~gate.any(axis=1) & ~by_person if k else np.zeros(0, bool)
-        return BlobMatch(dist, weight, new, hi, bi, unsupported)
+        return BlobMatch(dist, weight, new, hi, bi, ~gate.any(axis=1) & ~by_person)
 
     def support(self, hyp: Hypotheses, frame: Frame, match: BlobMatch) -> Hypotheses:
         """One copy of hypothesis ``hi[j]`` per supporting blob ``bi[j]``: Eq. 3, Kalman,
@@ -166,7 +168,7 @@ class BlobAssociation(Role):
         state, P, position = self.filter.correct(out.state, out.P, out.t_state, frame.xy[bi],
                                                  t)
         out.state, out.P, out.position, out.t_state = state, P, position, t
-        weight = np.clip(out.weight + (c.w_inc - c.w_dec / c.distance_unit * d), 0.0, 100.0)
+        weight = _percent(out.weight + (c.w_inc - c.w_dec / c.distance_unit * d))
         out.weight = wall_penalty(c, weight, state[:, 2:], frame.structure[bi])
         out.samples += 1
         out.supported, out.stopped = True, False

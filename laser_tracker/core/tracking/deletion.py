@@ -27,7 +27,7 @@ class Deletion(Role):
         c = self.config
         keep = hyp.weight >= c.remove_below
         gone = None
-        if not keep.all():
+        if np.count_nonzero(keep) < keep.size:
             hyp, gone = hyp.take(keep), hyp.take(~keep)
         bounded = len(hyp) > c.max_hypotheses
         if bounded:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from laser_tracker.core.detections import Detections
+from laser_tracker.core.detections import Detections, People, Segments
 from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.role import Role
 
@@ -31,20 +31,27 @@ class Scanner:
     """The scanner's pose (x, y, theta; odometry frame) at this frame, and at the previous
     frame (``previous``, None at the first) with that frame's stamp."""
 
-    __slots__ = ('pose', 'previous', 'previous_stamp')
+    __slots__ = ('pose', 'previous', 'previous_stamp', '_place', '_cos', '_sin')
 
     def __init__(self, pose: np.ndarray, previous: np.ndarray | None,
                  previous_stamp: float | None):
         self.pose, self.previous, self.previous_stamp = pose, previous, previous_stamp
+        x, y, th = pose.tolist() if pose.size == 3 else (0.0, 0.0, 0.0)
+        finite = math.isfinite(x) and math.isfinite(y) and math.isfinite(th)
+        self._place = np.array((x, y)) if finite else None
+        self._cos, self._sin = (math.cos(th), math.sin(th)) if finite else (0.0, 0.0)
 
     def to_scanner(self, xy: np.ndarray) -> np.ndarray:
-        """Odometry-frame points (k, 2) in the current scanner frame."""
-        x, y, th = self.pose if self.pose.size == 3 else (0.0, 0.0, 0.0)
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+        """Odometry-frame points (k, 2) in the current scanner frame (NaN without a finite
+        pose)."""
+        if self._place is None:
             return np.full_like(xy, np.nan)
-        c, s = math.cos(th), math.sin(th)
-        d = xy - (x, y)
-        return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
+        c, s = self._cos, self._sin
+        d = xy - self._place
+        out = d * c
+        out[:, 0] += s * d[:, 1]          # c dx + s dy
+        out[:, 1] -= s * d[:, 0]          # -s dx + c dy
+        return out
 
     @staticmethod
     def from_scanner(local: np.ndarray, pose) -> np.ndarray:
@@ -115,17 +122,8 @@ class Measurements(Role):
     def read(self, detections: Detections) -> Frame:
         scanner = Scanner(np.asarray(detections.origin, dtype=float).reshape(-1)[:3],
                           self.previous_pose, self.previous_stamp)
-        xy, usable = self._usable_blobs(detections)
-        people, segments = detections.people, detections.segments
-        persons, seen = _finite_rows(people.xy, people.confidence)
-        segment_xy, found = _finite_rows(segments.xy, segments.leg)
-        static = _aligned(people.static, seen, False, bool)
-        frame = Frame(stamp=float(detections.stamp), scanner=scanner, xy=xy,
-                      structure=_aligned(detections.blobs.structure, usable, np.nan),
-                      persons=persons, confidence=_aligned(people.confidence, seen, 1.0),
-                      free=_aligned(people.free, seen, False, bool),
-                      spread=np.where(static, np.nan, _aligned(people.spread, seen, np.nan)),
-                      segments=segment_xy, leg=_aligned(segments.leg, found, 1.0))
+        frame = Frame(float(detections.stamp), scanner, *self._usable_blobs(detections),
+                      *_people(detections.people), *_segments(detections.segments))
         if self.config.ride_along_reach > 0:
             frame.without_blobs(self._riding_with_scanner(frame))
         return frame
@@ -137,14 +135,17 @@ class Measurements(Role):
 
     def _usable_blobs(self, detections: Detections) -> tuple[np.ndarray, np.ndarray]:
         """Motion blobs that are finite, within max_blob_range of the scanner, at most
-        max_blobs (the largest): positions and mask."""
+        max_blobs (the largest): positions and structure."""
         c = self.config
         blobs = detections.blobs
         xy = np.asarray(blobs.xy, dtype=float).reshape(-1, 2)
+        n = xy.shape[0]
+        if not n:
+            return xy, np.zeros(0)
         d = xy - np.asarray(detections.origin, dtype=float)[:2]
         ok = (d * d).sum(axis=1) <= c.max_blob_range ** 2   # NaN anywhere -> False
-        if ok.all() and xy.shape[0] <= c.max_blobs:
-            return xy, ok
+        if np.count_nonzero(ok) == n <= c.max_blobs:
+            return xy, _aligned(blobs.structure, None, n, np.nan)
         if not ok.all():
             log.warning('t=%.3f: dropped %d blob(s) that are not finite or further than '
                         '%.1f m from the scanner', detections.stamp, int((~ok).sum()),
@@ -160,7 +161,7 @@ class Measurements(Role):
             log.warning('t=%.3f: %d blobs, only the %d largest are tracked (max_blobs)',
                         detections.stamp, kept.size, c.max_blobs)
             self.stats['blobs_dropped'] += int(kept.size - c.max_blobs)
-        return xy[ok], ok
+        return xy[ok], _aligned(blobs.structure, ok, n, np.nan)
 
     def _riding_with_scanner(self, frame: Frame) -> np.ndarray:
         """Mask: motion blobs within ``ride_along_reach`` of the scanner that kept their place
@@ -186,21 +187,46 @@ class Measurements(Role):
         return out
 
 
-def _finite_rows(xy, values) -> tuple[np.ndarray, np.ndarray]:
+def _people(people: People) -> tuple[np.ndarray, ...]:
+    """The finite person detections: positions, confidence, free, spread (NaN where all
+    legs stand on static background)."""
+    xy = np.asarray(people.xy, dtype=float).reshape(-1, 2)
+    n = xy.shape[0]
+    if not n:
+        return xy, np.zeros(0), np.zeros(0, bool), np.zeros(0)
+    xy, ok = _finite_rows(xy, people.confidence)
+    static = _aligned(people.static, ok, n, False, bool)
+    return (xy, _aligned(people.confidence, ok, n, 1.0), _aligned(people.free, ok, n, False, bool),
+            np.where(static, np.nan, _aligned(people.spread, ok, n, np.nan)))
+
+
+def _segments(segments: Segments) -> tuple[np.ndarray, np.ndarray]:
+    """The finite segments: positions and leg probability."""
+    xy = np.asarray(segments.xy, dtype=float).reshape(-1, 2)
+    if not xy.shape[0]:
+        return xy, np.zeros(0)
+    n = xy.shape[0]
+    xy, ok = _finite_rows(xy, segments.leg)
+    return xy, _aligned(segments.leg, ok, n, 1.0)
+
+
+def _finite_rows(xy: np.ndarray, values) -> tuple[np.ndarray, np.ndarray | None]:
     """Rows of points ``xy`` (n, 2) that are finite, with a finite value in ``values`` (n,)
-    when it has one per point: the points and the mask."""
-    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    ok = np.isfinite(xy).all(axis=1)
+    when it has one per point: the points and the mask (None: all)."""
     values = np.asarray(values, dtype=float).reshape(-1)
-    if values.shape[0] == ok.shape[0]:
+    aligned = values.shape[0] == xy.shape[0]
+    if math.isfinite(xy.sum() + (values.sum() if aligned else 0.0)):
+        return xy, None                       # (a finite sum: every value is finite)
+    ok = np.isfinite(xy).all(axis=1)
+    if aligned:
         ok &= np.isfinite(values)
-    return xy[ok], ok
+    return (xy, None) if ok.all() else (xy[ok], ok)
 
 
-def _aligned(values, ok: np.ndarray, neutral, dtype=float) -> np.ndarray:
-    """``values`` (one per measurement) at the kept measurements ``ok``; ``neutral`` for each
-    when there is not one per measurement."""
+def _aligned(values, ok: np.ndarray | None, n: int, neutral, dtype=float) -> np.ndarray:
+    """``values``, one per measurement of ``n``, at the kept measurements ``ok`` (None:
+    all); ``neutral`` for each when there is not one per measurement."""
     values = np.asarray(values, dtype=dtype).reshape(-1)
-    if values.shape[0] != ok.shape[0]:
-        return np.full(int(ok.sum()), neutral, dtype=dtype)
-    return values if ok.all() else values[ok]
+    if values.shape[0] != n:
+        return np.full(n if ok is None else int(ok.sum()), neutral, dtype=dtype)
+    return values if ok is None else values[ok]

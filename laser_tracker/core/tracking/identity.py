@@ -48,7 +48,7 @@ class Identity(Role):
     def split(self, copies: Hypotheses, parent: np.ndarray, distance: np.ndarray) -> None:
         """``copies`` of the hypotheses ``parent`` (sorted), each at ``distance`` from its
         parent's prediction: all but the nearest copy of each parent become new hypotheses."""
-        if parent.size < 2 or not np.any(parent[1:] == parent[:-1]):
+        if parent.size < 2 or not (parent[1:] == parent[:-1]).any():
             return
         order = np.lexsort((distance, parent))
         extra = np.zeros(parent.size, bool)
@@ -68,10 +68,11 @@ class Identity(Role):
         if k < 2 or c.merge_distance <= 0:
             return hyp
         pos, vel = hyp.position, hyp.velocity
-        dp = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=2)
-        dv = ((vel[:, None, :] - vel[None, :, :]) ** 2).sum(axis=2)
-        close = (dp <= c.merge_distance ** 2) & (dv <= c.merge_speed ** 2)
+        close = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=2) <= c.merge_distance ** 2
         if np.count_nonzero(close) == k:          # only the diagonal: nothing to merge
+            return hyp
+        close &= ((vel[:, None, :] - vel[None, :, :]) ** 2).sum(axis=2) <= c.merge_speed ** 2
+        if np.count_nonzero(close) == k:
             return hyp
         a, b = np.nonzero(np.triu(close, 1))
         group = _components(k, a, b)

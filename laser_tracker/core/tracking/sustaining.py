@@ -33,6 +33,8 @@ class Sustaining(Role):
             return []
         segment = self.segment_of(hyp, rest, pred[rest], frame)
         held = segment >= 0
+        if not held.any():
+            return [self.coast(hyp.take(rest), pred[rest], frame)]
         return [self.hold(hyp.take(rest[held]), frame.segments[segment[held]], frame.stamp),
                 self.coast(hyp.take(rest[~held]), pred[rest[~held]], frame)]
 
