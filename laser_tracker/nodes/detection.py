@@ -4,8 +4,9 @@ Subscribes ``scan`` (sensor_msgs/LaserScan), ``ego_motion`` (nav_msgs/Odometry: 
 pose per scan) and ``ego_motion/status`` (diagnostic_msgs/DiagnosticArray: may the pose be
 trusted; ``status_topic``, '' to trust every pose, e.g. when another localisation publishes
 ``ego_motion``), joins them by identical header stamps, and publishes ``blobs``
-(visualization_msgs/MarkerArray, schema in README.md): the moving-object candidates of each
-scan in the odometry frame, stamped exactly as the scan.
+(visualization_msgs/MarkerArray, schema in README.md): what detection found in each scan
+(``core.detections.Detections``: motion blobs, people, segments) in the odometry frame,
+stamped exactly as the scan.
 
 The node is convert -> ``core.stages.Detector`` -> convert; the stage owns the stream rules
 (time going backwards, duplicates, gaps, a restarted pose chain) and the pose gate.

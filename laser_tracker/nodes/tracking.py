@@ -1,6 +1,7 @@
 """Node ``tracking``: movement hypotheses with a Kalman filter each (paper Sec. 7-9).
 
-Subscribes ``blobs`` (from the ``detection`` node). Publishes ``tracks``: the confirmed
+Subscribes ``blobs`` (from the ``detection`` node: motion blobs, people and segments,
+``core.detections.Detections``). Publishes ``tracks``: the confirmed
 moving objects, and ``hypotheses``: every live hypothesis, both as
 visualization_msgs/MarkerArray in the moving-object schema (README.md, "Topics and schemas";
 ``text`` carries ``weight``, ``confirmed``, ``samples``, ``kind``, ``moving`` and the position
