@@ -121,10 +121,11 @@ class TrackFilter:
         dt = np.asarray(dt, dtype=float)
         k = pos_new.shape[0]
         vel = (pos_new - pos_prev) / dt[:, None]
-        state = np.hstack((pos_new, vel))
+        state = np.concatenate((pos_new, vel), axis=1)
         if self.paper:
             # The first velocity measurement, with the measurement's own covariance.
-            P = np.broadcast_to(self.config.r * np.eye(2), (k, 2, 2)).copy()
+            P = np.zeros((k, 2, 2))
+            P[:, 0, 0] = P[:, 1, 1] = self.config.r
         else:
             r = self.config.cv_position_noise
             P = np.zeros((k, 4, 4))

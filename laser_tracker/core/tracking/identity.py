@@ -67,15 +67,15 @@ class Identity(Role):
         k = len(hyp)
         if k < 2 or c.merge_distance <= 0:
             return hyp
-        pos, vel = hyp.position, hyp.velocity
-        close = ((pos[:, None, :] - pos[None, :, :]) ** 2).sum(axis=2) <= c.merge_distance ** 2
+        close = _squared_distances(hyp.position) <= c.merge_distance ** 2
         if np.count_nonzero(close) == k:          # only the diagonal: nothing to merge
             return hyp
-        close &= ((vel[:, None, :] - vel[None, :, :]) ** 2).sum(axis=2) <= c.merge_speed ** 2
+        close &= _squared_distances(hyp.velocity) <= c.merge_speed ** 2
         if np.count_nonzero(close) == k:
             return hyp
-        a, b = np.nonzero(np.triu(close, 1))
-        group = _components(k, a, b)
+        a, b = np.nonzero(close)
+        pair = a < b
+        group = _components(k, a[pair], b[pair])
         rows = hyp.rows
         # State: the best-supported member (supported now, then weight, then samples).
         keep = _first_of_group(group, np.lexsort((-rows['samples'], -rows['weight'],
@@ -147,6 +147,16 @@ class Identity(Role):
         self.lost = lost[~taken]
 
 
+def _squared_distances(xy: np.ndarray) -> np.ndarray:
+    """(k, k) squared distances between the rows of ``xy`` (k, 2)."""
+    x, y = xy[:, 0], xy[:, 1]
+    dx, dy = x[:, None] - x[None, :], y[:, None] - y[None, :]
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return dx
+
+
 def _first_of_group(group: np.ndarray, order: np.ndarray) -> np.ndarray:
     """Mask: the first member of each group (labels ``group``) in ``order``."""
     k = group.size
@@ -166,6 +176,6 @@ def _components(k: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         np.minimum.at(new, a, m)
         np.minimum.at(new, b, m)
         new = new[new]
-        if np.array_equal(new, label):
+        if not np.count_nonzero(new != label):
             return label
         label = new
