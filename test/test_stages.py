@@ -124,7 +124,7 @@ def test_time_going_backwards_restarts_the_stage(name):
     if name == 'ego_motion':
         assert out.quality.restarted                      # downstream stages are told
     elif name == 'detection':
-        assert out.detections.blobs.count == 0                        # a first scan: nothing to compare
+        assert out.detections.blobs.count == 0       # a first scan: nothing to compare
     else:
         assert len(out.hypotheses) == 0
     warm(h, 3)                                            # and it carries on from there

@@ -2,10 +2,11 @@
 difference map, blobs) -> tracking (hypotheses, Kalman).
 
 ``Pipeline(config)`` feeds each scan through the stages of ``core.stages`` and returns a
-:class:`StepResult` per scan: the scanner pose in the odometry frame, the blobs, the
-hypotheses (id, position, velocity in the odometry frame, weight, confirmed flag, samples)
-and, on request, the grid, the previous grid brought into the current frame and the
-difference map. ``step(scan)`` runs one scan at once; ``add_scan(scan, arrival)`` and
+:class:`StepResult` per scan: the scanner pose in the odometry frame, the detections
+(``core.detections.Detections``: motion blobs, people, segments), the hypotheses (id,
+position, velocity in the odometry frame, weight, confirmed flag, samples) and, on request,
+the grid, the previous grid brought into the current frame and the difference map.
+``step(scan)`` runs one scan at once; ``add_scan(scan, arrival)`` and
 ``add_odometry(stamp, pose, arrival)`` let scans wait for their odometry as the
 ``ego_motion`` node does (``odom_wait``), and return the results that became ready.
 

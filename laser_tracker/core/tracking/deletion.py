@@ -11,7 +11,7 @@ import numpy as np
 from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import Hypotheses
 
-log = logging.getLogger('laser_tracker.core.hypotheses')
+log = logging.getLogger('laser_tracker.core.hypotheses')   # the tracker's one log, all roles
 
 
 class Deletion(Role):

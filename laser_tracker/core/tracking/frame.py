@@ -19,7 +19,7 @@ from laser_tracker.core.detections import Detections, People, Segments
 from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.role import Role
 
-log = logging.getLogger('laser_tracker.core.hypotheses')
+log = logging.getLogger('laser_tracker.core.hypotheses')   # the tracker's one log, all roles
 
 #: A measurement rides along with the scanner (``ride_along_reach``) when it moved at least
 #: this far (m) in the world since the previous frame (more than range noise), and less than
@@ -196,7 +196,8 @@ def _people(people: People) -> tuple[np.ndarray, ...]:
         return xy, np.zeros(0), np.zeros(0, bool), np.zeros(0)
     xy, ok = _finite_rows(xy, people.confidence)
     static = _aligned(people.static, ok, n, False, bool)
-    return (xy, _aligned(people.confidence, ok, n, 1.0), _aligned(people.free, ok, n, False, bool),
+    return (xy, _aligned(people.confidence, ok, n, 1.0),
+            _aligned(people.free, ok, n, False, bool),
             np.where(static, np.nan, _aligned(people.spread, ok, n, np.nan)))
 
 
