@@ -644,8 +644,9 @@ MARKER_CYLINDER = 3
 MARKER_POINTS = 8
 
 
-def blobs_to_marker_array(factory: MessageFactory, blobs):
-    """``core.blobs.Blobs`` -> the ``blobs`` topic MarkerArray (schema in README.md).
+def detections_to_marker_array(factory: MessageFactory, detections):
+    """``core.detections.Detections`` -> the ``blobs`` topic MarkerArray (schema in
+    README.md).
 
     A DELETEALL marker, one CYLINDER per motion blob (ns ``blobs``, id = index, position =
     centroid, scale.x = scale.y = extent, text = JSON ``{"cells": n, "structure": angle or
@@ -659,7 +660,8 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
     ego-motion restarted its pose chain: tracks are void).
     """
     f = factory
-    stamp, frame_id = float(blobs.stamp), blobs.frame_id
+    stamp, frame_id = float(detections.stamp), detections.frame_id
+    blobs, people = detections.blobs, detections.people
 
     def pose(x, y, yaw=0.0):
         return f.make('geometry_msgs/msg/Pose',
@@ -683,11 +685,11 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
             id=i, type=MARKER_CYLINDER, action=MARKER_ADD, pose=pose(*blobs.xy[i]),
             scale=f.make('geometry_msgs/msg/Vector3', x=extent, y=extent, z=0.1),
             color=color(1.0, 0.4, 0.0, 0.8), text=text))
-    for i, (px, py) in enumerate(np.asarray(blobs.persons, float).reshape(-1, 2)):
-        free = blobs.person_free[i] if i < len(blobs.person_free) else False
-        spread = float(blobs.person_spread[i]) if i < len(blobs.person_spread) else math.nan
-        static = blobs.person_static[i] if i < len(blobs.person_static) else False
-        text = json.dumps({'confidence': round(float(blobs.person_confidence[i]), 4),
+    for i, (px, py) in enumerate(np.asarray(people.xy, float).reshape(-1, 2)):
+        free = people.free[i] if i < len(people.free) else False
+        spread = float(people.spread[i]) if i < len(people.spread) else math.nan
+        static = people.static[i] if i < len(people.static) else False
+        text = json.dumps({'confidence': round(float(people.confidence[i]), 4),
                            'free': bool(free), 'static': bool(static),
                            'spread': round(spread, 4) if math.isfinite(spread) else None},
                           separators=(',', ':'))
@@ -696,9 +698,9 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
             id=i, type=MARKER_CYLINDER, action=MARKER_ADD, pose=pose(px, py),
             scale=f.make('geometry_msgs/msg/Vector3', x=0.5, y=0.5, z=1.0),
             color=color(0.9, 0.1, 0.9, 0.6), text=text))
-    segments = np.asarray(blobs.segments, float).reshape(-1, 2)
+    segments = np.asarray(detections.segments.xy, float).reshape(-1, 2)
     if segments.shape[0]:
-        leg = np.asarray(blobs.segment_leg, float).reshape(-1)
+        leg = np.asarray(detections.segments.leg, float).reshape(-1)
         leg = leg if leg.shape[0] == segments.shape[0] else np.zeros(segments.shape[0])
         markers.append(f.make(
             'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
@@ -709,23 +711,23 @@ def blobs_to_marker_array(factory: MessageFactory, blobs):
             color=color(0.5, 0.5, 0.5, 0.6),
             points=[f.make('geometry_msgs/msg/Point', x=float(a), y=float(b), z=0.0)
                     for a, b in segments]))
-    x, y, theta = (float(v) for v in blobs.origin)
+    x, y, theta = (float(v) for v in detections.origin)
     markers.append(f.make(
         'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='scanner',
         id=0, type=MARKER_ARROW, action=MARKER_ADD, pose=pose(x, y, theta),
         scale=f.make('geometry_msgs/msg/Vector3', x=0.4, y=0.05, z=0.05),
         color=color(0.2, 0.8, 0.2, 0.8),
-        text=json.dumps({'restarted': bool(getattr(blobs, 'restarted', False))},
-                        separators=(',', ':'))))
+        text=json.dumps({'restarted': bool(detections.restarted)}, separators=(',', ':'))))
     return f.make('visualization_msgs/msg/MarkerArray', markers=markers)
 
 
-def blobs_from_marker_array(msg):
-    """The ``blobs`` topic MarkerArray -> ``core.blobs.Blobs``.
+def detections_from_marker_array(msg):
+    """The ``blobs`` topic MarkerArray -> ``core.detections.Detections``.
 
-    Raises ValueError if the array has no ``scanner`` marker (not a blobs message).
+    Raises ValueError if the array has no ``scanner`` marker (not a message of the
+    ``blobs`` topic).
     """
-    from laser_tracker.core.blobs import Blobs
+    from laser_tracker.core.detections import Blobs, Detections, People, Segments
 
     rows, origin, stamp, frame_id, restarted = [], None, math.nan, 'odom', False
     stamp_ns = None
@@ -776,14 +778,16 @@ def blobs_from_marker_array(msg):
         raise ValueError('MarkerArray has no scanner marker: not a blobs message')
     arr = np.array(rows, dtype=float).reshape(-1, 5)
     people = np.array(persons, dtype=float).reshape(-1, 6)
-    return Blobs(stamp=stamp, origin=np.array(origin, dtype=float), xy=arr[:, :2].copy(),
-                 cells=arr[:, 2].astype(np.int64), extent=arr[:, 3].copy(),
-                 structure=arr[:, 4].copy(), frame_id=frame_id, restarted=restarted,
-                 stamp_ns=stamp_ns, persons=people[:, :2].copy(),
-                 person_confidence=people[:, 2].copy(), person_free=people[:, 3] > 0.5,
-                 person_spread=people[:, 4].copy(), person_static=people[:, 5] > 0.5,
-                 segments=np.array(segments, dtype=float).reshape(-1, 3)[:, :2].copy(),
-                 segment_leg=np.array(segments, dtype=float).reshape(-1, 3)[:, 2].copy())
+    seg = np.array(segments, dtype=float).reshape(-1, 3)
+    return Detections(
+        stamp=stamp, origin=np.array(origin, dtype=float),
+        blobs=Blobs(xy=arr[:, :2].copy(), cells=arr[:, 2].astype(np.int64),
+                    extent=arr[:, 3].copy(), structure=arr[:, 4].copy()),
+        people=People(xy=people[:, :2].copy(), confidence=people[:, 2].copy(),
+                      free=people[:, 3] > 0.5, spread=people[:, 4].copy(),
+                      static=people[:, 5] > 0.5),
+        segments=Segments(xy=seg[:, :2].copy(), leg=seg[:, 2].copy()),
+        frame_id=frame_id, restarted=restarted, stamp_ns=stamp_ns)
 
 
 # ----------------------------------------------------------------------------------- tracks

@@ -9,6 +9,7 @@ from scipy import ndimage
 
 from laser_tracker.core.blobs import (BlobConfig, Blobs, label_cells, segment,
                                       surface_centroids)
+from laser_tracker.core.geometry import points_in_frame
 
 N = 100
 RES = 0.1
@@ -59,13 +60,13 @@ def test_segment_centroids_sizes_extents_in_the_odometry_frame():
     cells = [(60, 50), (60, 51), (61, 50), (61, 51), (30, 70)]
     origin = np.array([10.0, -2.0, math.pi / 2])       # scanner at (10, -2) facing +y
     blobs = segment(flat_of(cells), N, RES, origin, 5.0, cfg)
-    assert isinstance(blobs, Blobs) and blobs.count == 2 and blobs.stamp == 5.0
+    assert isinstance(blobs, Blobs) and blobs.count == 2
     order = np.argsort(-blobs.cells)
     assert blobs.cells[order].tolist() == [4, 1]
     local_big = (centre(60, 50) + centre(61, 51)) / 2       # (1.05, 0.05) in the scanner frame
     expected = np.array([10.0 - local_big[1], -2.0 + local_big[0]])
     assert np.allclose(blobs.xy[order[0]], expected)
-    assert np.allclose(blobs.local()[order[0]], local_big)
+    assert np.allclose(points_in_frame(origin, blobs.xy)[order[0]], local_big)
     assert np.allclose(blobs.extent[order], [0.2, 0.1])
     assert np.isnan(blobs.structure).all()                   # no scan points: no structure
 

@@ -182,15 +182,16 @@ def test_bad_scans_and_a_beam_count_that_changes_pass_detection(paper):
         pipeline.add_odometry(t, (0.0, 0.0, 0.0))
         r = pipeline.step(scan, want_grids=k % 2 == 0)
         det = r.detection
-        b = r.blobs
-        assert np.isfinite(b.xy).all() and np.isfinite(b.persons).all()
-        assert np.isfinite(b.segments).all() and b.segments.shape[0] == b.segment_leg.size
-        assert not np.isinf(b.structure).any() and np.isfinite(b.person_confidence).all()
+        d = r.detections
+        b = d.blobs
+        assert np.isfinite(b.xy).all() and np.isfinite(d.people.xy).all()
+        assert np.isfinite(d.segments.xy).all() and len(d.segments) == d.segments.leg.size
+        assert not np.isinf(b.structure).any() and np.isfinite(d.people.confidence).all()
         if det.grid is not None:
             assert det.grid.shape == (config.grid.cells,) * 2
             assert set(np.unique(det.grid)) <= {0, 1, 2}
         if kind == 'invalid':
-            assert b.count == 0 and b.segments.shape == (0, 2)
+            assert b.count == 0 and d.segments.xy.shape == (0, 2)
         reported += r.skipped is None
     assert reported >= len(runs) - 3                   # at most the ego-motion's own skips
 

@@ -90,7 +90,7 @@ def test_structure_seen_before_is_never_a_change_with_the_static_background():
             out = det.update(_room_scan(t, (0, 0, 0), None if hidden else post),
                              _pose(t, (0, 0, 0)))
             if k >= 10:
-                blobs += out.blobs.count
+                blobs += out.detections.blobs.count
         return blobs
     assert run(0.0) > 0
     assert run(10.0) == 0
@@ -107,6 +107,6 @@ def test_free_window_sees_a_walker_entering_the_previous_scans_shadow():
         for k, post in enumerate(posts):              # 3.3, into its own shadow
             t = 0.1 * k
             seen.append(det.update(_room_scan(t, (0, 0, 0), post), _pose(t, (0, 0, 0))))
-        return seen[-1].blobs.count
+        return seen[-1].detections.blobs.count
     assert run(0.0) == 0
     assert run(0.3) > 0

@@ -71,32 +71,33 @@ def test_table_legs_in_view_all_along_are_not_a_person():
     table = [(2.5, -0.4, 0.05), (2.5, 0.4, 0.05), (3.1, -0.4, 0.05), (3.1, 0.4, 0.05)]
     scans = [stamped_scan(1.0 + k * DT, table) for k in range(60)]
     results, pipeline = run(scans)
-    detected = sum(len(r.blobs.persons) for r in results)
+    detected = sum(len(r.detections.people) for r in results)
     confirmed = {int(i) for r in results for i in r.hypotheses.track_id[r.hypotheses.confirmed]}
     assert detected > 0, 'the table legs should look like legs to the detector'
     assert not confirmed
 
 
 def test_person_detections_cross_the_blobs_message_unchanged():
-    from laser_tracker.conversions import (bag_factory, blobs_from_marker_array,
-                                           blobs_to_marker_array, ros_factory)
+    from laser_tracker.conversions import (bag_factory, detections_from_marker_array,
+                                           detections_to_marker_array, ros_factory)
     from laser_tracker.tools.bag import TYPESTORE
 
     det = Detector(CONFIG.grid, CONFIG.difference, CONFIG.blobs, CONFIG.person_detector)
     for k in range(12):
         out = det.update(stamped_scan(1.0 + k * DT, legs(3.0, -1.0 + 0.1 * k, k)),
                          pose(1.0 + k * DT))
-    b = out.blobs
-    assert len(b.persons) >= 1 and len(b.segments) >= 2
+    people, segments = out.detections.people, out.detections.segments
+    assert len(people) >= 1 and len(segments) >= 2
     for factory in (ros_factory(), bag_factory(TYPESTORE)):
-        back = blobs_from_marker_array(blobs_to_marker_array(factory, b))
-        np.testing.assert_allclose(back.persons, b.persons)
-        np.testing.assert_allclose(back.person_confidence, b.person_confidence, atol=1e-4)
-        assert back.person_free.tolist() == b.person_free.tolist()
-        assert back.person_static.tolist() == b.person_static.tolist()
-        np.testing.assert_allclose(back.person_spread, b.person_spread, atol=1e-4)
-        np.testing.assert_allclose(back.segments, b.segments)
-        np.testing.assert_allclose(back.segment_leg, b.segment_leg, atol=1e-3)
+        back = detections_from_marker_array(detections_to_marker_array(factory,
+                                                                      out.detections))
+        np.testing.assert_allclose(back.people.xy, people.xy)
+        np.testing.assert_allclose(back.people.confidence, people.confidence, atol=1e-4)
+        assert back.people.free.tolist() == people.free.tolist()
+        assert back.people.static.tolist() == people.static.tolist()
+        np.testing.assert_allclose(back.people.spread, people.spread, atol=1e-4)
+        np.testing.assert_allclose(back.segments.xy, segments.xy)
+        np.testing.assert_allclose(back.segments.leg, segments.leg, atol=1e-3)
 
 
 def test_a_missing_model_leaves_the_motion_method_running(tmp_path, caplog):
@@ -108,7 +109,7 @@ def test_a_missing_model_leaves_the_motion_method_running(tmp_path, caplog):
     scans = [stamped_scan(1.0 + k * DT, [(3.0, -2.0 + 0.15 * k, 0.12)]) for k in range(15)]
     results = [pipeline.step(s) for s in scans]
     assert any(r.hypotheses.confirmed.any() for r in results)
-    assert all(len(r.blobs.persons) == 0 for r in results)
+    assert all(len(r.detections.people) == 0 for r in results)
 
 
 def test_the_detector_can_be_switched_off_and_is_off_in_the_paper_reference():
@@ -127,4 +128,4 @@ def test_the_detector_can_be_switched_off_and_is_off_in_the_paper_reference():
 def test_a_box_wall_is_no_person():
     scans = [stamped_scan(1.0 + k * DT, [], WALLS + box(3.0, 0.0, 0.8)) for k in range(20)]
     results, _ = run(scans)
-    assert all(len(r.blobs.persons) == 0 for r in results)
+    assert all(len(r.detections.people) == 0 for r in results)

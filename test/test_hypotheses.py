@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from laser_tracker.core.blobs import Blobs
+from laser_tracker.core.detections import Blobs, Detections, People, Segments
 from laser_tracker.core.hypotheses import HypothesisConfig, HypothesisTracker
 from laser_tracker.core.kalman import KalmanConfig
 
@@ -18,8 +18,9 @@ DT = 0.2
 def frame(t, *points, structure=None):
     xy = np.array(points, dtype=float).reshape(-1, 2)
     s = np.full(xy.shape[0], np.nan) if structure is None else np.asarray(structure, float)
-    return Blobs(stamp=t, origin=np.zeros(3), xy=xy, cells=np.full(xy.shape[0], 2),
-                 extent=np.full(xy.shape[0], 0.1), structure=s)
+    return Detections(stamp=t, origin=np.zeros(3),
+                      blobs=Blobs(xy=xy, cells=np.full(xy.shape[0], 2),
+                                  extent=np.full(xy.shape[0], 0.1), structure=s))
 
 
 def walk(tracker, n, start=(1.0, 0.0), v=(1.0, 0.0), t0=0.0):
@@ -182,13 +183,14 @@ def test_bad_blobs_are_dropped_with_a_warning(caplog):
     assert 'not finite' in caplog.text
 
 
-def people(t, *persons, confidence=0.9, segments=(), blobs_xy=(), free=True):
-    b = frame(t, *blobs_xy)
-    b.persons = np.array(persons, float).reshape(-1, 2)
-    b.person_confidence = np.full(b.persons.shape[0], confidence)
-    b.person_free = np.full(b.persons.shape[0], free)
-    b.segments = np.array(segments, float).reshape(-1, 2)
-    return b
+def people(t, *persons, confidence=0.9, segments=(), blobs_xy=(), free=True, leg=1.0):
+    d = frame(t, *blobs_xy)
+    xy = np.array(persons, float).reshape(-1, 2)
+    d.people = People(xy=xy, confidence=np.full(xy.shape[0], confidence),
+                      free=np.full(xy.shape[0], free))
+    at = np.array(segments, float).reshape(-1, 2)
+    d.segments = Segments(xy=at, leg=np.full(at.shape[0], leg))
+    return d
 
 
 def test_a_standing_person_detected_by_shape_is_tracked_and_not_moving():
@@ -272,13 +274,11 @@ def test_a_flickering_blob_still_creates_its_hypothesis_with_a_creation_window()
 def person_frame(t, xy, spread, free=False):
     """A person detection alone (no motion blob) standing at ``xy`` with its legs
     ``spread`` apart."""
-    b = frame(t)
-    b.persons = np.array([xy], dtype=float)
-    b.person_confidence = np.array([0.9])
-    b.person_free = np.array([free])
-    b.person_spread = np.array([spread])
-    b.person_static = np.array([False])
-    return b
+    d = frame(t)
+    d.people = People(xy=np.array([xy], dtype=float), confidence=np.array([0.9]),
+                      free=np.array([free]), spread=np.array([spread]),
+                      static=np.array([False]))
+    return d
 
 
 @pytest.mark.parametrize('gait_spread, confirmed', [(0.0, False), (0.1, True)])
@@ -363,9 +363,7 @@ def test_a_person_missed_by_the_detector_is_held_by_a_leg_like_segment(leg, keep
         r = tr.update(people(k * DT, (2.0, 1.0)))
     (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
     for k in range(8, 20):
-        b = people(k * DT, segments=[(2.05, 1.0)])
-        b.segment_leg = np.array([leg])
-        r = tr.update(b)
+        r = tr.update(people(k * DT, segments=[(2.05, 1.0)], leg=leg))
     assert (tid in r.hypotheses.track_id.tolist()) is keeps
 
 
@@ -379,8 +377,7 @@ def test_a_standing_person_is_not_pulled_off_by_a_blob_beyond_person_blob_gate(b
     tr = HypothesisTracker(HypothesisConfig(person_blob_gate=blob_gate), KalmanConfig())
     for k in range(12):
         if k == 8:
-            b = people(k * DT, segments=[(2.0, 1.0)], blobs_xy=[(2.6, 1.0)])
-            b.segment_leg = np.array([0.5])
+            b = people(k * DT, segments=[(2.0, 1.0)], blobs_xy=[(2.6, 1.0)], leg=0.5)
         else:
             b = people(k * DT, (2.0, 1.0))
         r = tr.update(b)
@@ -428,3 +425,101 @@ def test_a_blob_that_rides_along_near_the_scanner_is_ignored():
     assert run(0.4, reach=0.0).confirmed.any()                # paper: the body is tracked
     assert run(3.0).confirmed.any()
     assert run(0.6, relative=1.5).confirmed.any()             # someone overtaking it
+
+
+def test_the_state_is_one_aligned_record_per_hypothesis_moved_whole():
+    """take and concat move every field of a row unchanged; every number is aligned."""
+    from laser_tracker.core.tracking.state import Hypotheses, hypothesis_dtype
+    for dim in (2, 4):
+        dtype = hypothesis_dtype(dim)
+        assert dtype.itemsize % 8 == 0
+        assert all(dtype.fields[n][1] % 8 == 0 for n in dtype.names
+                   if dtype.fields[n][0].base.itemsize == 8)
+        rng = np.random.default_rng(dim)
+        h = Hypotheses.empty(dim, 5)
+        h.rows.view(np.uint8)[:] = rng.integers(0, 256, h.rows.nbytes, dtype=np.uint8)
+
+        def same(a, rows):
+            return all(a.rows[n].tobytes() == h.rows[n][rows].tobytes() for n in dtype.names)
+        assert same(h.take([3, 1]), [3, 1])
+        assert same(h.take(np.array([True, False, False, False, True])), [0, 4])
+        assert same(Hypotheses.concat([h.take([0]), Hypotheses.empty(dim), h.take([2, 4])],
+                                      dim), [0, 2, 4])
+        assert len(Hypotheses.concat([], dim)) == 0
+        h.velocity[:] = 7.0                      # a view: it writes the state
+        assert (h.state[:, 2:] == 7.0).all() and h.P.shape == (5, dim, dim)
+
+
+def confirmed_after(config, n=12, speed=1.0):
+    """The frame at which a blob walking at ``speed`` is confirmed (None: never)."""
+    tr = HypothesisTracker(config, KalmanConfig())
+    for k in range(n):
+        if tr.update(frame(k * DT, (1.0 + speed * k * DT, 0.0))).newly_confirmed.size:
+            return k
+    return None
+
+
+def test_each_further_confirmation_rule_holds_back_until_it_is_met():
+    assert confirmed_after(HypothesisConfig()) == 4                       # the paper's m
+    assert confirmed_after(HypothesisConfig(confirm_time=1.0)) == 6       # lived 1 s
+    assert confirmed_after(HypothesisConfig(confirm_min_travel=0.7)) == 5  # 0.7 m from start
+    assert confirmed_after(HypothesisConfig(confirm_min_speed=0.8), speed=0.6) is None
+    assert confirmed_after(HypothesisConfig(confirm_min_speed=0.5), speed=0.6) == 4
+
+
+def test_coast_grace_spares_a_new_hypothesis_a_missed_scan():
+    def survives(grace):
+        tr = HypothesisTracker(HypothesisConfig(coast_grace=grace), KalmanConfig())
+        tr.update(frame(0.0, (1.0, 0.0)))
+        tr.update(frame(DT, (1.2, 0.0)))                      # created, weight 20
+        tr.update(frame(2 * DT))                              # missed: coasts
+        return len(tr.hyp) == 1 and tr.hyp.weight[0]
+    assert survives(0.0) is False                               # 20 - 200 * 0.2 < 10
+    assert survives(0.5) == pytest.approx(20.0)
+
+
+def test_new_parameters_reach_every_role_and_the_memory_stays():
+    """reconfigure: the next frame runs under the new parameters; hypotheses, earlier frames
+    (creation pairs) and ids are kept."""
+    tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
+    walk(tr, 3)
+    (tid,) = tr.hyp.track_id
+    assert not tr.reconfigure(HypothesisConfig(confirm_samples=2, creation_window=0.0),
+                              KalmanConfig())
+    assert all(role.config.confirm_samples == 2 for role in tr.roles)
+    r = tr.update(frame(3 * DT, (1.0 + 3 * DT, 0.0), (4.0, 4.0)))
+    assert r.hypotheses.track_id[r.newly_confirmed].tolist() == [tid]     # 3 samples >= 2
+    r = tr.update(frame(4 * DT, (1.0 + 4 * DT, 0.0), (4.2, 4.0)))         # pairs with 3*DT
+    assert r.created == 1 and tid in r.hypotheses.track_id.tolist()
+    assert tr.reconfigure(HypothesisConfig(), KalmanConfig(mode='cv'))   # new state vectors
+
+
+def test_a_person_detection_that_is_not_finite_is_dropped_alone():
+    """A NaN detection among others: the others keep their own flags (the one walking in
+    is confirmed as such), no crash, no warning needed."""
+    tr = HypothesisTracker(HypothesisConfig(person_confirm_samples=0), KalmanConfig())
+    for k in range(8):
+        d = frame(k * DT)
+        d.people = People(xy=np.array([[np.nan, 1.0], [2.0, 1.0], [5.0, -3.0]]),
+                          confidence=np.full(3, 0.9), free=np.array([False, True, False]),
+                          spread=np.full(3, 0.2), static=np.zeros(3, bool))
+        r = tr.update(d)
+    h = r.hypotheses
+    walked_in = h.confirmed & (np.hypot(*(h.position - (2.0, 1.0)).T) < 0.1)
+    standing = ~h.confirmed & (np.hypot(*(h.position - (5.0, -3.0)).T) < 0.1)
+    assert len(h) == 2 and walked_in.sum() == 1 and standing.sum() == 1
+
+
+def test_fields_of_the_wrong_length_take_their_neutral_values():
+    """A malformed message (one value too few in each per-item field): the tracker reads
+    the positions, with no structure, confidence 1, not walked in, any segment."""
+    tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
+    for k in range(6):
+        d = frame(k * DT, (1.0 + k * DT, 0.0), (3.0 + k * DT, 1.0))
+        d.blobs.structure = np.zeros(1)
+        d.people = People(xy=np.array([[2.0, -2.0]]), confidence=np.zeros(0),
+                          free=np.zeros(0, bool), spread=np.zeros(0), static=np.zeros(0, bool))
+        d.segments = Segments(xy=np.array([[5.0, 5.0], [6.0, 6.0]]), leg=np.zeros(1))
+        r = tr.update(d)
+    assert r.hypotheses.confirmed.sum() == 2           # both blobs, no wall penalty
+    assert len(r.hypotheses) == 3                      # and the person (confidence 1)

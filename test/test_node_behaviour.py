@@ -164,8 +164,9 @@ def test_live_parameters_take_effect_from_the_next_message(graph):
     assert graph.set(graph.detection, 'blobs.min_cells', 10000).successful
     n = len(graph.got['blobs'])
     walk(graph, 40.0, 4)
-    from laser_tracker.conversions import blobs_from_marker_array
-    assert all(blobs_from_marker_array(a).count == 0 for a in graph.got['blobs'][n:])
+    from laser_tracker.conversions import detections_from_marker_array
+    assert all(detections_from_marker_array(a).blobs.count == 0
+               for a in graph.got['blobs'][n:])
     # a read-only parameter says why
     ro = graph.set(graph.detection, 'status_topic', 'other')
     assert not ro.successful and 'read-only' in ro.reason.lower()

@@ -265,7 +265,7 @@ def _offline_gated(messages, config):
         h = res.hypotheses
         keep = h.confirmed
         stamp = round(res.stamp, 6)
-        blobs[stamp] = res.blobs.xy.copy()
+        blobs[stamp] = res.detections.blobs.xy.copy()
         tracks[stamp] = sorted(zip(h.track_id[keep].tolist(), h.position[keep, 0].tolist(),
                                    h.position[keep, 1].tolist()))
     return blobs, tracks, pipeline.events()['detection'].get('gated', 0)
@@ -280,7 +280,7 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
     from visualization_msgs.msg import MarkerArray
 
     import laser_tracker.nodes.detection as detection
-    from laser_tracker.conversions import blobs_from_marker_array, objects_from_marker_array
+    from laser_tracker.conversions import detections_from_marker_array, objects_from_marker_array
     from laser_tracker.core.pipeline import PipelineConfig
 
     strict = 0.85          # exp1's matches explain 79-95 % of the points
@@ -314,8 +314,8 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
             graph.spin_until(lambda: len(graph.tracks) > n and len(published_blobs) > m)
         got_blobs = {}
         for array in published_blobs:
-            b = blobs_from_marker_array(array)
-            got_blobs[round(b.stamp, 6)] = b.xy
+            d = detections_from_marker_array(array)
+            got_blobs[round(d.stamp, 6)] = d.blobs.xy
         assert got_blobs.keys() == blobs.keys()
         for stamp, xy in blobs.items():
             np.testing.assert_allclose(got_blobs[stamp], xy, atol=1e-6, err_msg=str(stamp))
@@ -333,19 +333,19 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
 def test_ego_motion_restart_crosses_to_detection_and_tracking(ros_context):
     """A restarted pose chain voids the odometry-frame history downstream too, as the offline
     pipeline does: the flag rides on ego_motion/status and then in the blobs."""
-    from laser_tracker.conversions import (blobs_from_marker_array, blobs_to_marker_array,
-                                           ros_factory)
-    from laser_tracker.core.blobs import Blobs
+    from laser_tracker.conversions import (detections_from_marker_array,
+                                           detections_to_marker_array, ros_factory)
+    from laser_tracker.core.detections import Blobs, Detections
     from laser_tracker.nodes.tracking import TrackingNode
 
     node = TrackingNode(context=ros_context)
     try:
         def blobs(stamp, x, restart=False):
-            b = Blobs(stamp=stamp, origin=np.zeros(3), xy=np.array([[x, 2.0]]),
-                      cells=np.array([3]), extent=np.array([0.2]),
-                      structure=np.array([np.nan]), restarted=restart)
-            msg = blobs_to_marker_array(ros_factory(), b)
-            assert blobs_from_marker_array(msg).restarted == restart
+            d = Detections(stamp=stamp, origin=np.zeros(3), restarted=restart,
+                           blobs=Blobs(xy=np.array([[x, 2.0]]), cells=np.array([3]),
+                                       extent=np.array([0.2]), structure=np.array([np.nan])))
+            msg = detections_to_marker_array(ros_factory(), d)
+            assert detections_from_marker_array(msg).restarted == restart
             return msg
 
         for k in range(6):                      # a blob walking at 1 m/s: hypotheses live

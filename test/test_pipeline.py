@@ -118,7 +118,7 @@ def test_without_ego_motion_compensation_the_same_scene_lights_up():
         t = 1.0 + k * DT
         pipeline.add_odometry(t, (0.0, 0.0, 0.0))
         pipeline.add_odometry(t + 0.1, (0.0, 0.0, 0.0))
-        blobs += pipeline.step(make_scan(world, moving(t), t)).blobs.count
+        blobs += pipeline.step(make_scan(world, moving(t), t)).detections.blobs.count
     assert blobs > 20
 
 
@@ -140,7 +140,7 @@ def test_bad_input_beam_count_change_nan_ranges_time_backwards(caplog):
         assert same.skipped == 'ego-motion: duplicate stamp'
         back = pipeline.step(make_scan(world, still(0), 0.5, mover(0.5)))   # backwards
         assert back.skipped is None
-    assert any(r.blobs.count for r in res[6:])             # 181 beams still detect
+    assert any(r.detections.blobs.count for r in res[6:])   # 181 beams still detect
     events = pipeline.events()
     assert events['ego_motion']['restart'] == 1
     assert events['ego_motion']['scan skipped: duplicate stamp'] == 1
@@ -163,8 +163,8 @@ def test_detection_and_tracking_separately_equal_the_pipeline():
         scan = make_scan(world, still(r.stamp), r.stamp, mover(r.stamp),
                          seed=int(round((r.stamp - 1.0) / DT)))
         det = detector.update(scan, stamped(r.stamp, r.pose))
-        assert np.allclose(det.blobs.xy, r.blobs.xy)
-        frame = tracker.update(det.blobs)
+        assert np.allclose(det.detections.blobs.xy, r.detections.blobs.xy)
+        frame = tracker.update(det.detections)
         assert np.array_equal(frame.hypotheses.track_id, r.hypotheses.track_id)
         assert np.allclose(frame.hypotheses.position, r.hypotheses.position)
 
@@ -221,7 +221,7 @@ def test_motion_depth_keeps_movers_and_leaves_a_stationary_scanner_alone():
     a = run(Pipeline(), world, still, near_wall, 20)
     b = run(Pipeline(paper), world, still, near_wall, 20)
     for ra, rb in zip(a, b):
-        assert np.array_equal(ra.blobs.xy, rb.blobs.xy)
+        assert np.array_equal(ra.detections.blobs.xy, rb.detections.blobs.xy)
     assert any(r.hypotheses.confirmed.any() for r in a)
     # Moving platform: a person in open space is still confirmed, moving the right way.
     res = run(Pipeline(), world, moving, mover, 25)
@@ -311,18 +311,20 @@ def test_untrusted_pose_reports_no_blobs_and_keeps_the_grid_history():
             ref = reference.update(scan, stamped(scan.stamp, pose, good))
             det = gated.update(scan, stamped(scan.stamp, pose, q))
             det_off = off.update(scan, stamped(scan.stamp, pose, q))
-            assert np.array_equal(det_off.blobs.xy, ref.blobs.xy)     # off: as before
+            assert np.array_equal(det_off.detections.blobs.xy,        # off: as before
+                                  ref.detections.blobs.xy)
             if k == 3:
-                assert ref.blobs.count > 0, 'the mover should be a blob on a trusted scan'
-                assert det.gated and det.blobs.count == 0 and det.changed == 0, name
+                assert ref.detections.blobs.count > 0, \
+                    'the mover should be a blob on a trusted scan'
+                assert det.gated and det.detections.blobs.count == 0 and det.changed == 0, name
                 assert not ref.gated and not det_off.gated
             else:
                 assert not det.gated
                 # The gated scan's grid stayed in the history: the next scan is compared
                 # with it exactly as without the gate (no restart, no lost scan).
-                assert np.array_equal(det.blobs.xy, ref.blobs.xy), (name, k)
+                assert np.array_equal(det.detections.blobs.xy, ref.detections.blobs.xy), (name, k)
             if k == 4:
-                assert det.blobs.count > 0, 'the scan after the gated one reports'
+                assert det.detections.blobs.count > 0, 'the scan after the gated one reports'
 
 
 def test_pipeline_withholds_blobs_of_a_scan_placed_by_odometry_and_tracking_coasts():
@@ -350,12 +352,13 @@ def test_pipeline_withholds_blobs_of_a_scan_placed_by_odometry_and_tracking_coas
     pipeline, res = run_with(PipelineConfig(), bad)
     _, ref = run_with(PipelineConfig(), set())
     _, off = run_with(PipelineConfig().replace(difference={'pose_gate': False}), bad)
-    assert ref[10].blobs.count > 0 and off[10].blobs.count == ref[10].blobs.count
-    assert res[10].blobs.count == 0 and res[10].detection.gated
+    count = [r[10].detections.blobs.count for r in (ref, off)]
+    assert count[0] > 0 and count[1] == count[0]
+    assert res[10].detections.blobs.count == 0 and res[10].detection.gated
     assert pipeline.events()['detection']['gated'] == 1
     for k in range(10):
-        assert np.array_equal(res[k].blobs.xy, ref[k].blobs.xy)
-    assert res[11].blobs.count > 0                  # the next scan reports again
+        assert np.array_equal(res[k].detections.blobs.xy, ref[k].detections.blobs.xy)
+    assert res[11].detections.blobs.count > 0        # the next scan reports again
     # The confirmed track coasts through the gated scan and keeps its identity.
     before = set(res[9].hypotheses.track_id[res[9].hypotheses.confirmed].tolist())
     during = set(res[10].hypotheses.track_id[res[10].hypotheses.confirmed].tolist())

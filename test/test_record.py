@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from laser_tracker.conversions import (blobs_from_marker_array,
+from laser_tracker.conversions import (detections_from_marker_array,
                                        objects_from_marker_array, scan_to_msg, stamp_to_ns,
                                        yaw_from_quaternion)
 from laser_tracker.core.geometry import compose
@@ -189,9 +189,9 @@ def test_blobs_are_the_detection_nodes_message(recorded):
     _, _, topics = recorded
     found = 0
     for _, _, msg in topics['/blobs']:
-        blobs = blobs_from_marker_array(msg)        # the tracking node's own decoder
-        assert blobs.frame_id == 'odom'
-        found += blobs.count + len(blobs.persons)
+        detections = detections_from_marker_array(msg)   # the tracking node's own decoder
+        assert detections.frame_id == 'odom'
+        found += detections.blobs.count + len(detections.people)
     assert found > 100
 
 

@@ -19,20 +19,23 @@ Visible surfaces are runs of consecutive scan end points (beam order) closer tha
 ``surface_gap``; a blob belongs to the surface of the end point nearest its centroid, and
 only that run of beams is read for its position and its wall test.
 
-:class:`Blobs` is the whole interface between detection and tracking: plain arrays that
-``laser_tracker.core.pipeline`` documents as a MarkerArray schema.
+The blobs are :class:`laser_tracker.core.detections.Blobs`, the motion part of what detection
+tells tracking (``core.detections.Detections``).
 """
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+
 from laser_tracker.config import param
 from laser_tracker.core import jit
+from laser_tracker.core.detections import Blobs
 
 log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class BlobConfig:
@@ -65,60 +68,6 @@ class BlobConfig:
     structure_elongation: float = param(3.0, 'Ratio of the principal standard deviations of '
                                         'those points above which they form a line (a wall) '
                                         'with a direction.', min=1.0, max=100.0)
-
-
-@dataclass
-class Blobs:
-    """What detection tells tracking about one scan (plain arrays, odometry frame):
-
-    * the motion blobs of the difference map (paper Sec. 6): ``xy``, ``cells``, ``extent``,
-      ``structure``;
-    * the people found by the shape of their legs (``persons``, ``person_confidence``,
-      ``person_free``: where they stand was seen free before, so they walked in;
-      ``person_spread``: the distance between the two legs, NaN for a lone leg;
-      ``person_static``: all its legs on static background), when the person detector runs;
-    * the scan's compact segments (``segments``: centroids of the jump-distance clusters
-      narrower than a metre, with their leg probability ``segment_leg`` when the person
-      detector runs, else 0), occupied space that keeps a stopped object's track alive.
-    """
-
-    stamp: float
-    origin: np.ndarray                    # (3,) scanner pose x, y, theta in the odometry frame
-    xy: np.ndarray                        # (b, 2) centroids, odometry frame, metres
-    cells: np.ndarray                     # (b,) int
-    extent: np.ndarray                    # (b,) metres
-    structure: np.ndarray                 # (b,) radians (odometry frame, mod pi) or NaN
-    frame_id: str = 'odom'
-    dropped: int = field(default=0)       # blobs dropped by max_blobs
-    restarted: bool = False               # the pose chain restarted here: tracks are void
-    stamp_ns: int | None = None           # the scan's exact stamp (integer ns), when known
-    persons: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    person_confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    person_free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    person_spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    person_static: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    segment_leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def count(self) -> int:
-        return int(self.xy.shape[0])
-
-    def __len__(self) -> int:
-        return self.count
-
-    @classmethod
-    def empty(cls, stamp: float, origin, frame_id: str = 'odom') -> Blobs:
-        return cls(stamp=float(stamp), origin=np.asarray(origin, dtype=float),
-                   xy=np.zeros((0, 2)), cells=np.zeros(0, dtype=np.int64),
-                   extent=np.zeros(0), structure=np.zeros(0), frame_id=frame_id)
-
-    def local(self) -> np.ndarray:
-        """Centroids in the scanner frame (for figures)."""
-        x, y, t = self.origin
-        c, s = np.cos(t), np.sin(t)
-        d = self.xy - np.array([x, y])
-        return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
 
 
 # ------------------------------------------------------------------------------ kernels
@@ -409,14 +358,13 @@ def segment(changed: np.ndarray, cells: int, resolution: float, origin, stamp: f
     local, n, extent, shape, dropped, count = _blobs(
         changed, cells, float(resolution), _NO_POINTS if points is None else points, settings)
     if count == 0:
-        return Blobs.empty(stamp, origin)
+        return Blobs.empty()
     if dropped:
         log.warning('%d blobs in one scan at t=%.3f: kept the %d largest (blobs.max_blobs)',
                     count, stamp, config.max_blobs)
     xy, structure = _place(local, shape, 0.5 * np.arctan2(shape[_ATAN_Y], shape[_ATAN_X]),
                            origin, settings, float(resolution))
-    return Blobs(stamp=float(stamp), origin=origin, xy=xy, cells=n, extent=extent,
-                 structure=structure, dropped=dropped)
+    return Blobs(xy=xy, cells=n, extent=extent, structure=structure, dropped=dropped)
 
 
 def surface_centroids(centroids: np.ndarray, points: np.ndarray, config: BlobConfig,

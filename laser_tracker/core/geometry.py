@@ -67,6 +67,15 @@ def transform_points(pose, points: np.ndarray) -> np.ndarray:
     return out
 
 
+def points_in_frame(pose, points: np.ndarray) -> np.ndarray:
+    """Points (N, 2) of the parent frame expressed in the frame of ``pose`` (the inverse of
+    :func:`transform_points`)."""
+    x, y, t = pose
+    c, s = np.cos(t), np.sin(t)
+    d = np.asarray(points, dtype=float) - np.array([x, y])
+    return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
+
+
 def interpolate_poses(stamps: np.ndarray, poses: np.ndarray, query: np.ndarray) -> np.ndarray:
     """Poses (N, 3) at sorted ``stamps`` linearly interpolated (angles unwrapped) at ``query``.
 

@@ -51,25 +51,28 @@ class KalmanConfig:
                                      'the velocity).', min=1e-9, max=100.0)
 
 
+_I2 = np.eye(2)
+_I2.flags.writeable = False
+_ADJUGATE_SIGNS = np.array([[1.0, -1.0], [-1.0, 1.0]])
+_ADJUGATE_SIGNS.flags.writeable = False
+
+
 def _inv2(s: np.ndarray) -> np.ndarray:
     """Inverse of stacked 2 x 2 matrices (k, 2, 2): the adjugate over the determinant."""
-    out = s[:, ::-1, ::-1].copy()            # [[d, c], [b, a]]
-    out[:, 0, 1] *= -1.0
-    out[:, 1, 0] *= -1.0                     # [[d, -c], [-b, a]]
-    out = out.transpose(0, 2, 1)             # [[d, -b], [-c, a]]
+    out = s[:, ::-1, ::-1].transpose(0, 2, 1) * _ADJUGATE_SIGNS   # [[d, -b], [-c, a]]
     out /= (s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0])[:, None, None]
     return out
 
 
 def predict_velocity(x: np.ndarray, P: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 9 and 10: x- = x, P- = P + Q (stacked)."""
-    return x, P + q * np.eye(2)
+    return x, P + q * _I2
 
 
 def update_velocity(x_pred: np.ndarray, P_pred: np.ndarray, z: np.ndarray,
                     r: float) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 13, 11, 12 with H = I (stacked): gain, state and covariance."""
-    K = P_pred @ _inv2(P_pred + r * np.eye(2))
+    K = P_pred @ _inv2(P_pred + r * _I2)
     x = x_pred + (K @ (z - x_pred)[:, :, None])[:, :, 0]
     P = P_pred - K @ P_pred                  # (I - K) P-
     return x, P
@@ -97,7 +100,7 @@ def cv_predict(x: np.ndarray, P: np.ndarray, dt: np.ndarray,
 def cv_update(x: np.ndarray, P: np.ndarray, z: np.ndarray,
               r: float) -> tuple[np.ndarray, np.ndarray]:
     """Position measurement update, H = [I 0], R = r I (stacked)."""
-    S = P[:, :2, :2] + r * np.eye(2)
+    S = P[:, :2, :2] + r * _I2
     K = P[:, :, :2] @ _inv2(S)                       # (k, 4, 2)
     x = x + (K @ (z - x[:, :2])[:, :, None])[:, :, 0]
     P = P - K @ P[:, :2, :]
@@ -118,10 +121,11 @@ class TrackFilter:
         dt = np.asarray(dt, dtype=float)
         k = pos_new.shape[0]
         vel = (pos_new - pos_prev) / dt[:, None]
-        state = np.hstack((pos_new, vel))
+        state = np.concatenate((pos_new, vel), axis=1)
         if self.paper:
             # The first velocity measurement, with the measurement's own covariance.
-            P = np.broadcast_to(self.config.r * np.eye(2), (k, 2, 2)).copy()
+            P = np.zeros((k, 2, 2))
+            P[:, 0, 0] = P[:, 1, 1] = self.config.r
         else:
             r = self.config.cv_position_noise
             P = np.zeros((k, 4, 4))
@@ -143,8 +147,7 @@ class TrackFilter:
             z = (blob - state[:, :2]) / dt[:, None]
             v, Pp = predict_velocity(state[:, 2:], P, self.config.q)
             v, P = update_velocity(v, Pp, z, self.config.r)
-            out = np.hstack((blob, v))
-            return out, P, blob
+            return np.concatenate((blob, v), axis=1), P, blob
         x, Pp = cv_predict(state, P, dt, self.config.cv_accel_noise)
         x, P = cv_update(x, Pp, blob, self.config.cv_position_noise)
         return x, P, x[:, :2]
@@ -154,7 +157,7 @@ class TrackFilter:
         """Covariance (k, 2, 2) of the predicted positions at ``t``."""
         dt = (t - np.asarray(t_state, dtype=float))[:, None, None]
         if self.paper:
-            return self.config.position_variance * np.eye(2) + P * dt * dt
+            return self.config.position_variance * _I2 + P * dt * dt
         return (P[:, :2, :2] + dt * (P[:, :2, 2:] + P[:, 2:, :2]) + dt * dt * P[:, 2:, 2:])
 
     def hold(self, state: np.ndarray, P: np.ndarray,
@@ -164,10 +167,10 @@ class TrackFilter:
         if self.paper:
             v, Pp = predict_velocity(state[:, 2:], P, self.config.q)
             v, P = update_velocity(v, Pp, np.zeros((k, 2)), self.config.r)
-            return np.hstack((position, v)), P
+            return np.concatenate((position, v), axis=1), P
         x = state.copy()
         x[:, :2] = position
-        S = P[:, 2:, 2:] + self.config.cv_position_noise * np.eye(2)
+        S = P[:, 2:, 2:] + self.config.cv_position_noise * _I2
         K = P[:, :, 2:] @ _inv2(S)
         x = x + (K @ (-x[:, 2:])[:, :, None])[:, :, 0]
         x[:, :2] = position
@@ -181,5 +184,5 @@ class TrackFilter:
         whole gap, so nothing changes here.
         """
         if self.paper:
-            return P + self.config.q * np.eye(2)
+            return P + self.config.q * _I2
         return P

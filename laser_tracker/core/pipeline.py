@@ -2,10 +2,11 @@
 difference map, blobs) -> tracking (hypotheses, Kalman).
 
 ``Pipeline(config)`` feeds each scan through the stages of ``core.stages`` and returns a
-:class:`StepResult` per scan: the scanner pose in the odometry frame, the blobs, the
-hypotheses (id, position, velocity in the odometry frame, weight, confirmed flag, samples)
-and, on request, the grid, the previous grid brought into the current frame and the
-difference map. ``step(scan)`` runs one scan at once; ``add_scan(scan, arrival)`` and
+:class:`StepResult` per scan: the scanner pose in the odometry frame, the detections
+(``core.detections.Detections``: motion blobs, people, segments), the hypotheses (id,
+position, velocity in the odometry frame, weight, confirmed flag, samples) and, on request,
+the grid, the previous grid brought into the current frame and the difference map.
+``step(scan)`` runs one scan at once; ``add_scan(scan, arrival)`` and
 ``add_odometry(stamp, pose, arrival)`` let scans wait for their odometry as the
 ``ego_motion`` node does (``odom_wait``), and return the results that became ready.
 
@@ -31,17 +32,19 @@ from typing import Any
 import numpy as np
 
 from laser_tracker.config import describe, from_dict, to_dict
-from laser_tracker.core.blobs import BlobConfig, Blobs
+from laser_tracker.core.blobs import BlobConfig
+from laser_tracker.core.detections import Detections
 from laser_tracker.core.difference import DifferenceConfig
 from laser_tracker.core.egomotion import EgoMotionConfig
 from laser_tracker.core.grid import GridConfig
-from laser_tracker.core.hypotheses import HypothesisArrays, HypothesisConfig
+from laser_tracker.core.hypotheses import HypothesisConfig
 from laser_tracker.core.kalman import KalmanConfig
 from laser_tracker.core.person_detector import PersonDetectorConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig
 from laser_tracker.core.self_mask import SelfMaskConfig
 from laser_tracker.core.stages import Detection, Detector, EgoMotion, StampedPose, Tracker
+from laser_tracker.core.tracking.state import Hypotheses
 
 
 # ---------------------------------------------------------------------------- config
@@ -111,8 +114,8 @@ class StepResult:
     pose: np.ndarray                  # scanner pose in the odometry frame
     motion: np.ndarray                # relative motion since the previous scan
     source: str                       # ego-motion source
-    blobs: Blobs
-    hypotheses: HypothesisArrays
+    detections: Detections
+    hypotheses: Hypotheses
     newly_confirmed: np.ndarray       # indices into hypotheses
     created: int
     detection: Detection
@@ -180,20 +183,21 @@ class Pipeline:
         if det is None:
             return self._skipped(scan, f'detection: {self.detector.skipped}')
         t0 = time.perf_counter() if self.profile else 0.0
-        frame = self.tracker.update(det.blobs)
+        frame = self.tracker.update(det.detections)
         if self.profile:
             self.times['tracking'] += time.perf_counter() - t0
         if frame is None:
             return self._skipped(scan, f'tracking: {self.tracker.skipped}')
         return StepResult(stamp=scan.stamp, pose=pose.pose, motion=pose.motion,
-                          source=pose.source, blobs=det.blobs, hypotheses=frame.hypotheses,
+                          source=pose.source, detections=det.detections,
+                          hypotheses=frame.hypotheses,
                           newly_confirmed=frame.newly_confirmed, created=frame.created,
                           detection=det, scan=scan, ego=pose)
 
     def _skipped(self, scan: Scan, reason: str) -> StepResult:
-        empty = Blobs.empty(scan.stamp, np.full(3, np.nan))
+        empty = Detections(float(scan.stamp), np.full(3, np.nan))
         return StepResult(stamp=scan.stamp, pose=np.full(3, np.nan), motion=np.zeros(3),
-                          source='skipped', blobs=empty,
+                          source='skipped', detections=empty,
                           hypotheses=self.tracker.hypotheses.hyp,
                           newly_confirmed=np.zeros(0, np.intp), created=0,
                           detection=Detection(empty, 0), skipped=reason, scan=scan)

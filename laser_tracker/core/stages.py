@@ -7,7 +7,7 @@ stage          input -> output                             algorithm (paper sect
 ``Detector``   scan + its pose -> :class:`Detection`        ``grid``, ``difference``,
                                                            ``blobs`` (Sec. 5-6),
                                                            ``person_detector``
-``Tracker``    blobs -> ``hypotheses.FrameResult``          ``hypotheses``, ``kalman``
+``Tracker``    detections -> ``hypotheses.FrameResult``     ``hypotheses``, ``kalman``
                                                            (Sec. 7-9)
 ``Head``       tracks + pose -> ``head.HeadCommand``        ``head`` (Sec. 10.3)
 =============  ==========================================  =================================
@@ -38,7 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from laser_tracker.core import jit
-from laser_tracker.core.blobs import BlobConfig, Blobs, segment
+from laser_tracker.core.blobs import BlobConfig, segment
+from laser_tracker.core.detections import Blobs, Detections, People, Segments
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map,
                                            people_in_odometry, pose_quality, pose_trusted)
@@ -246,7 +247,7 @@ class EgoMotion:
 class Detection:
     """Detection output for one scan; grids only when requested."""
 
-    blobs: Blobs
+    detections: Detections
     changed: int                       # cells in the difference map
     grid: np.ndarray | None = None
     previous: np.ndarray | None = None     # previous grid in the current scanner frame
@@ -366,9 +367,9 @@ class Detector:
         det = self._detect(scan, at, want_grids, pose.quality)
         self._people_and_segments(scan, at, det)
         self._add_to_background(at, float(scan.stamp), det)
-        det.blobs.frame_id = pose.frame_id or self.frame_id
-        det.blobs.stamp_ns = scan.stamp_ns
-        det.blobs.restarted = bool(pose.quality.restarted)
+        det.detections.frame_id = pose.frame_id or self.frame_id
+        det.detections.stamp_ns = scan.stamp_ns
+        det.detections.restarted = bool(pose.quality.restarted)
         if det.gated:
             self.events.note('gated', 'ego-motion pose not trusted: no blobs', logging.DEBUG)
         return det
@@ -376,18 +377,21 @@ class Detector:
     def _people_and_segments(self, scan: Scan, pose: np.ndarray, det: Detection) -> None:
         """People (by leg shape) and compact segments of ``scan``, odometry frame."""
         t0 = time.perf_counter() if self.times is not None else 0.0
-        b = det.blobs
+        d = det.detections
         if self.person_detector is not None:
             people = self.person_detector.detect(scan)
             det.persons = people
-            b.person_confidence = people.confidence
-            b.segment_leg = people.leg_probability
+            leg = people.leg_probability
         else:                                       # no people: the segments alone
             people = PersonDetections.empty()
             people.leg_xy = segments_of(scan, self.segment_config).xy
-            b.segment_leg = np.zeros(people.leg_xy.shape[0])
-        b.persons, b.person_free, b.person_static, b.person_spread, b.segments = \
+            leg = np.zeros(people.leg_xy.shape[0])
+        xy, free, static, spread, segments = \
             people_in_odometry(people, pose, float(scan.stamp), self.history, self.background)
+        if self.person_detector is not None:
+            d.people = People(xy=xy, confidence=people.confidence, free=free, spread=spread,
+                              static=static)
+        d.segments = Segments(xy=segments, leg=leg)
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
 
@@ -396,7 +400,7 @@ class Detector:
         (within ``MOVER_RADIUS`` of a motion blob): people who keep passing the same spot (a
         corridor) do not make it static."""
         if self.background is not None:
-            self.background.add(self.history[0].points, stamp, pose, det.blobs.xy,
+            self.background.add(self.history[0].points, stamp, pose, det.detections.blobs.xy,
                                 MOVER_RADIUS)
 
     def _detect(self, scan: Scan, pose: np.ndarray, want_grids: bool,
@@ -411,7 +415,7 @@ class Detector:
         previous = history[0] if len(history) else None
         gated = not pose_trusted(quality, self.difference_config)
         if previous is None or gated:
-            det = Detection(Blobs.empty(scan.stamp, pose, self.frame_id), 0,
+            det = Detection(Detections(stamp, pose, frame_id=self.frame_id), 0,
                             gated=gated and previous is not None)
             if want_grids:
                 self._grids(det, frame, previous, pose)
@@ -427,13 +431,14 @@ class Detector:
             blobs = segment(d_cells, cells, res, pose, scan.stamp, self.blob_config,
                             frame.points)
         else:
-            blobs = Blobs.empty(scan.stamp, pose, self.frame_id)
+            blobs = Blobs.empty()
         if times is not None:
             t3 = time.perf_counter()
             times['grid'] += t1 - t0
             times['difference'] += t2 - t1
             times['blobs'] += t3 - t2
-        det = Detection(blobs, int(d_cells.size))
+        det = Detection(Detections(stamp, pose, blobs, frame_id=self.frame_id),
+                        int(d_cells.size))
         if want_grids:
             self._grids(det, frame, previous, pose)
             det.changed_cells = d_cells.copy()
@@ -455,7 +460,7 @@ class Detector:
 
 
 class Tracker:
-    """Stage: blobs -> movement hypotheses (paper Sec. 7-9).
+    """Stage: detections -> movement hypotheses (paper Sec. 7-9).
 
     Stream rules: an invalid or duplicate stamp is skipped (a second publisher on the blobs
     topic changes nothing); time going backwards, a gap longer than ``hypotheses.max_gap``
@@ -496,22 +501,23 @@ class Tracker:
         stamp = self.last.stamp if self.last is not None else math.nan
         return self.hypotheses.report(stamp)
 
-    def update(self, blobs: Blobs) -> FrameResult | None:
+    def update(self, detections: Detections) -> FrameResult | None:
         self.skipped = None
-        verdict = self.rules.screen(float(blobs.stamp), 'blobs', self.events)
+        stamp = float(detections.stamp)
+        verdict = self.rules.screen(stamp, 'blobs', self.events)
         if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
             return None
         if verdict == BACKWARDS:
-            self.reset(f'time went backwards ({self.rules.last:.3f} -> {blobs.stamp:.3f} s)')
+            self.reset(f'time went backwards ({self.rules.last:.3f} -> {stamp:.3f} s)')
         elif verdict == GAP:
-            self.reset(f'gap of {blobs.stamp - self.rules.last:.2f} s > hypotheses.max_gap')
-        elif blobs.restarted and verdict != FIRST:
+            self.reset(f'gap of {stamp - self.rules.last:.2f} s > hypotheses.max_gap')
+        elif detections.restarted and verdict != FIRST:
             self.reset('the ego-motion pose chain restarted')
-        self.rules.accept(float(blobs.stamp))
-        self.last = self.hypotheses.update(blobs)
+        self.rules.accept(stamp)
+        self.last = self.hypotheses.update(detections)
         if self.last.bounded:
-            self.events.note('hypothesis bound reached', f't={blobs.stamp:.3f} s')
+            self.events.note('hypothesis bound reached', f't={stamp:.3f} s')
         return self.last
 
 

@@ -4,8 +4,9 @@ Subscribes ``scan`` (sensor_msgs/LaserScan), ``ego_motion`` (nav_msgs/Odometry: 
 pose per scan) and ``ego_motion/status`` (diagnostic_msgs/DiagnosticArray: may the pose be
 trusted; ``status_topic``, '' to trust every pose, e.g. when another localisation publishes
 ``ego_motion``), joins them by identical header stamps, and publishes ``blobs``
-(visualization_msgs/MarkerArray, schema in README.md): the moving-object candidates of each
-scan in the odometry frame, stamped exactly as the scan.
+(visualization_msgs/MarkerArray, schema in README.md): what detection found in each scan
+(``core.detections.Detections``: motion blobs, people, segments) in the odometry frame,
+stamped exactly as the scan.
 
 The node is convert -> ``core.stages.Detector`` -> convert; the stage owns the stream rules
 (time going backwards, duplicates, gaps, a restarted pose chain) and the pose gate.
@@ -21,7 +22,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import LaserScan
 from visualization_msgs.msg import MarkerArray
 
-from laser_tracker.conversions import (blobs_to_marker_array, ego_motion_from_msgs,
+from laser_tracker.conversions import (detections_to_marker_array, ego_motion_from_msgs,
                                        restamp_ns, ros_factory, scan_from_msg, stamp_to_ns)
 from laser_tracker.core.stages import Detector
 from laser_tracker.core.stream import StampPairer
@@ -69,8 +70,9 @@ class DetectionNode(Node):
         detection = self.stage.update(items['scan'], pose)
         if detection is None:
             return
-        msg = blobs_to_marker_array(self.factory, detection.blobs)
-        self.blobs_pub.publish(restamp_ns(self.factory, msg, detection.blobs.stamp_ns))
+        found = detection.detections
+        msg = detections_to_marker_array(self.factory, found)
+        self.blobs_pub.publish(restamp_ns(self.factory, msg, found.stamp_ns))
 
 
 def main(args=None) -> None:

@@ -1,6 +1,7 @@
 """Node ``tracking``: movement hypotheses with a Kalman filter each (paper Sec. 7-9).
 
-Subscribes ``blobs`` (from the ``detection`` node). Publishes ``tracks``: the confirmed
+Subscribes ``blobs`` (from the ``detection`` node: motion blobs, people and segments,
+``core.detections.Detections``). Publishes ``tracks``: the confirmed
 moving objects, and ``hypotheses``: every live hypothesis, both as
 visualization_msgs/MarkerArray in the moving-object schema (README.md, "Topics and schemas";
 ``text`` carries ``weight``, ``confirmed``, ``samples``, ``kind``, ``moving`` and the position
@@ -18,7 +19,7 @@ from __future__ import annotations
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
-from laser_tracker.conversions import blobs_from_marker_array, ros_factory, tracker_msgs
+from laser_tracker.conversions import detections_from_marker_array, ros_factory, tracker_msgs
 from laser_tracker.core.stages import Tracker
 from laser_tracker.nodes import common
 from laser_tracker.nodes.params import LiveParameters
@@ -44,11 +45,11 @@ class TrackingNode(Node):
         self.stage.reconfigure(sections['hypotheses'], sections['kalman'])
 
     def on_blobs(self, msg: MarkerArray) -> None:
-        blobs = blobs_from_marker_array(msg)
-        if self.stage.update(blobs) is None:
+        found = detections_from_marker_array(msg)
+        if self.stage.update(found) is None:
             return
         tracks, hypotheses, markers = tracker_msgs(self.factory, self.stage.tracks(),
-                                                   blobs.stamp, blobs.frame_id, blobs.stamp_ns)
+                                                   found.stamp, found.frame_id, found.stamp_ns)
         self.tracks_pub.publish(tracks)
         self.hypotheses_pub.publish(hypotheses)
         self.markers_pub.publish(markers)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from laser_tracker.core.geometry import points_in_frame
 from laser_tracker.core.grid import FREE, OCCUPIED, UNKNOWN
 from laser_tracker.tools.atomic import atomic_path
 
@@ -235,9 +236,9 @@ def scan_figure(result, resolution: float, path: str | Path, title: str = '') ->
                 ax.plot(px[j], py[j], 'x', color=colour, ms=8, mew=2)
                 ax.annotate(str(int(h.track_id[j])), (px[j], py[j]), fontsize=8,
                             color=colour)
-    b = result.blobs
+    b = result.detections.blobs
     if b.count:
-        loc = b.local()
+        loc = points_in_frame(result.pose, b.xy)
         ax.plot(loc[:, 0], loc[:, 1], 'o', mfc='none', color='tab:green', ms=6)
         axes[1, 0].plot(loc[:, 0], loc[:, 1], 'o', mfc='none', color='tab:green', ms=9,
                         mew=1.5)

@@ -50,8 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
-from laser_tracker.conversions import (OCCUPANCY_OF_CELL, PlanarTransform, blobs_to_marker_array,
-                                       difference_occupancy, ego_motion_to_msgs,
+from laser_tracker.conversions import (OCCUPANCY_OF_CELL, PlanarTransform,
+                                       detections_to_marker_array, difference_occupancy,
+                                       ego_motion_to_msgs,
                                        evaluation_markers, objects_to_marker_array,
                                        MovingObject, occupancy_grid_msg, restamp_ns,
                                        scan_to_msg, time_msg, tracker_msgs, transforms_to_msg)
@@ -262,9 +263,9 @@ class RunRecorder:
                 f, OCCUPANCY_OF_CELL[det.grid], self.resolution, stamp, scan.frame_id), ns), ns)
             self._write(DIFFERENCE_TOPIC, restamp_ns(f, occupancy_grid_msg(
                 f, difference_occupancy(det), self.resolution, stamp, scan.frame_id), ns), ns)
-        blobs = det.blobs
-        self._write(BLOBS_TOPIC, restamp_ns(f, blobs_to_marker_array(f, blobs), ns), ns)
-        confirmed, hypotheses, markers = tracker_msgs(f, tracks, blobs.stamp, blobs.frame_id,
+        found = det.detections
+        self._write(BLOBS_TOPIC, restamp_ns(f, detections_to_marker_array(f, found), ns), ns)
+        confirmed, hypotheses, markers = tracker_msgs(f, tracks, found.stamp, found.frame_id,
                                                       ns)
         self._write(HYPOTHESES_TOPIC, hypotheses, ns)
         self._write(TRACKS_TOPIC, confirmed, ns)

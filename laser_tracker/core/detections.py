@@ -1,0 +1,89 @@
+"""What detection tells tracking about one scan: :class:`Detections` (the ``blobs`` topic).
+
+Three kinds of measurement, each its own plain-array structure in the odometry frame:
+
+* :class:`Blobs`: the motion blobs of the difference map (paper Sec. 6), what the paper
+  tracks;
+* :class:`People`: people found by the shape of their legs (``core.person_detector``), when
+  the person detector runs;
+* :class:`Segments`: the scan's compact segments (jump-distance clusters at most a metre
+  wide), occupied space that keeps a stopped object's track alive.
+
+``conversions.detections_to_marker_array`` / ``detections_from_marker_array`` carry it as a
+MarkerArray (schema in README.md, "Topics and schemas").
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Blobs:
+    """The motion blobs of one scan (paper Sec. 6; ``core.blobs.segment``)."""
+
+    xy: np.ndarray                        # (b, 2) positions, odometry frame, metres
+    cells: np.ndarray                     # (b,) int: changed cells in the blob
+    extent: np.ndarray                    # (b,) metres: the larger side of its bounding box
+    structure: np.ndarray                 # (b,) radians (odometry frame, mod pi) or NaN
+    dropped: int = 0                      # blobs dropped by blobs.max_blobs
+
+    @property
+    def count(self) -> int:
+        return int(self.xy.shape[0])
+
+    def __len__(self) -> int:
+        return self.count
+
+    @classmethod
+    def empty(cls) -> Blobs:
+        return cls(xy=np.zeros((0, 2)), cells=np.zeros(0, dtype=np.int64), extent=np.zeros(0),
+                   structure=np.zeros(0))
+
+
+@dataclass
+class People:
+    """People found by the shape of their legs.
+
+    ``free``: where all its legs stand was seen free before (someone who walked in);
+    ``spread``: the distance between its two legs, NaN for a lone leg; ``static``: all its
+    legs stand on static background (where something has long stood)."""
+
+    xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    static: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __len__(self) -> int:
+        return int(np.shape(self.xy)[0])
+
+
+@dataclass
+class Segments:
+    """The scan's compact segments: centroids ``xy`` and ``leg``, each one's leg probability
+    when the person detector runs (else 0)."""
+
+    xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __len__(self) -> int:
+        return int(np.shape(self.xy)[0])
+
+
+@dataclass
+class Detections:
+    """Everything detection found in one scan, in the odometry frame of ``origin`` (the
+    scanner pose x, y, theta). ``restarted``: the ego-motion pose chain restarted at this
+    scan (positions before it are unrelated: tracks are void); ``stamp_ns``: the scan's
+    exact stamp (integer ns), when known."""
+
+    stamp: float
+    origin: np.ndarray
+    blobs: Blobs = field(default_factory=Blobs.empty)
+    people: People = field(default_factory=People)
+    segments: Segments = field(default_factory=Segments)
+    frame_id: str = 'odom'
+    restarted: bool = False
+    stamp_ns: int | None = None

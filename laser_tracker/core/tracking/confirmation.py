@@ -1,0 +1,107 @@
+"""Confirmation: when a hypothesis is reported as a moving object.
+
+The paper's rule (Sec. 8) is ``confirm_samples`` (m = 4) samples: the creation pair and
+three supporting blobs. Each further rule is a small function that says which of the
+candidates (hypotheses not confirmed yet, with m samples) may be confirmed, given the
+confirmed tracks and the frame; it applies while its parameter is above 0 (the paper mode
+sets them all to 0). A hypothesis is confirmed once every applying rule allows it, and stays
+confirmed.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from laser_tracker.core.geometry import pairwise_distances
+from laser_tracker.core.tracking.frame import Frame
+from laser_tracker.core.tracking.role import Role
+from laser_tracker.core.tracking.state import MOTION, PERSON, Hypotheses
+
+
+def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
+    """A hypothesis started by a person detection standing where the scans always saw
+    something (chair and table legs look like legs) only once it has moved
+    ``person_min_travel`` from where it started, both in the world (not clutter the robot
+    passes) and in the scanner's frame (not something riding along with the robot); or once
+    ``person_confirm_samples`` detections supported it (someone standing in view from the
+    start). A detection standing in space seen free before (someone who walked in) or legs
+    whose separation swings (``gait_spread``) made it ``PERSON_WALKED_IN``: no restriction."""
+    h = candidates
+    start = ((h.position - h.start) ** 2).sum(axis=1)
+    local = ((frame.scanner.to_scanner(h.position) - h.start_local) ** 2).sum(axis=1)
+    out = (h.origin != PERSON) | (np.minimum(start, local) >= c.person_min_travel ** 2)
+    if c.person_confirm_samples > 0:
+        out |= h.person_samples >= c.person_confirm_samples
+    return out
+
+
+def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
+                     frame: Frame) -> np.ndarray:
+    """Not a hypothesis (other than a person) that moves with the scanner: its velocity
+    within ``ride_along_speed`` of the velocity of the point of the scanner's rigid frame
+    where it is, while the scanner moves at least ``ride_along_min_speed`` (glass or a mirror
+    at normal incidence, the robot's own parts)."""
+    h = candidates
+    motion = frame.scanner.motion(frame.stamp)
+    if motion is None or motion[2] < c.ride_along_min_speed:
+        return np.ones(len(h), bool)
+    velocity, turn, _ = motion
+    arm = h.position - frame.scanner.pose[:2]
+    rigid = velocity + turn * np.column_stack((-arm[:, 1], arm[:, 0]))
+    relative = np.hypot(*(h.velocity - rigid).T)
+    return ~((relative < c.ride_along_speed) & ~h.is_person(c.person_kind_samples))
+
+
+def old_enough(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
+    """Lived ``confirm_time`` since its creation, whatever the scan rate."""
+    return frame.stamp - candidates.born >= c.confirm_time
+
+
+def fast_enough(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
+    """Moves at ``confirm_min_speed`` or faster (not a flicker in place)."""
+    return (candidates.velocity ** 2).sum(axis=1) >= c.confirm_min_speed ** 2
+
+
+def travelled(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
+    """Started by motion blobs: ``confirm_min_travel`` from where it was created (a moving
+    object goes somewhere; a thin static object flickering in the scans does not)."""
+    h = candidates
+    far = ((h.position - h.start) ** 2).sum(axis=1) >= c.confirm_min_travel ** 2
+    return far | (h.origin != MOTION)
+
+
+def not_a_duplicate(c, candidates: Hypotheses, confirmed: Hypotheses,
+                    frame: Frame) -> np.ndarray:
+    """Not within ``duplicate_radius`` of a confirmed track (it follows the same legs and
+    merges into it: confirming it would show a new id for a frame)."""
+    if not len(confirmed):
+        return np.ones(len(candidates), bool)
+    return ~(pairwise_distances(candidates.position, confirmed.position)
+             <= c.duplicate_radius).any(axis=1)
+
+
+#: The further rules, each with the parameter that switches it on (above 0).
+RULES = ((walked, 'person_min_travel'), (not_riding_along, 'ride_along_speed'),
+         (old_enough, 'confirm_time'), (fast_enough, 'confirm_min_speed'),
+         (travelled, 'confirm_min_travel'), (not_a_duplicate, 'duplicate_radius'))
+
+
+class Confirmation(Role):
+    """The paper's rule and the further rules (see the module docstring)."""
+
+    def confirm(self, hyp: Hypotheses, frame: Frame) -> np.ndarray:
+        """Confirms the hypotheses every applying rule allows; returns the indices of those
+        confirmed now."""
+        c = self.config
+        # The candidates: not confirmed yet, with the paper's m samples.
+        rows = np.flatnonzero(~hyp.confirmed & (hyp.samples >= c.confirm_samples))
+        if rows.size:
+            candidates, confirmed = hyp.take(rows), hyp.take(hyp.confirmed)
+            for rule, switch in RULES:
+                if getattr(c, switch) > 0:
+                    rows = rows[rule(c, candidates, confirmed, frame)]
+                    if not rows.size:
+                        break
+                    candidates = hyp.take(rows)
+            hyp.rows['confirmed'][rows] = True
+            self.stats['confirmed'] += int(rows.size)
+        return rows

@@ -1,0 +1,93 @@
+"""Sustaining the hypotheses no blob or person detection supports this frame.
+
+* **On a segment** (``segment_gate``, beyond the paper): a confirmed person's hypothesis
+  follows the nearest compact scan segment with a leg probability of at least
+  ``segment_min_leg`` within ``segment_gate`` of its prediction; another object's only a
+  segment within ``stop_radius`` of where it was (it stopped there), not clutter it passes.
+  A segment within ``stop_radius`` of the track means the object stands (its velocity is
+  measured as zero); farther, it is a position measurement like a blob. Neither gains
+  weight or samples: an object that stops stays tracked, with its id, as long as it stays
+  in the scans.
+* **Coasting** (paper Sec. 8): otherwise the hypothesis moves on along its velocity and
+  loses ``coast_rate`` weight per second (none for the first ``coast_grace`` seconds after
+  its last support), so a short occlusion is bridged.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from laser_tracker.core.geometry import pairwise_distances
+from laser_tracker.core.tracking.frame import Frame
+from laser_tracker.core.tracking.role import Role
+from laser_tracker.core.tracking.state import Hypotheses
+
+
+class Sustaining(Role):
+    """Segments, else coasting, for the unsupported hypotheses (see the module docstring)."""
+
+    def sustain(self, hyp: Hypotheses, pred: np.ndarray, frame: Frame,
+                unsupported: np.ndarray) -> list[Hypotheses]:
+        """The ``unsupported`` hypotheses: those held by a segment, then those coasting."""
+        rest = np.flatnonzero(unsupported)
+        if not rest.size:
+            return []
+        segment = self.segment_of(hyp, rest, pred[rest], frame)
+        held = segment >= 0
+        if not held.any():
+            return [self.coast(hyp.take(rest), pred[rest], frame)]
+        return [self.hold(hyp.take(rest[held]), frame.segments[segment[held]], frame.stamp),
+                self.coast(hyp.take(rest[~held]), pred[rest[~held]], frame)]
+
+    def segment_of(self, hyp: Hypotheses, rows: np.ndarray, pred: np.ndarray,
+                   frame: Frame) -> np.ndarray:
+        """Per row of ``rows``: the index of the segment that holds it, -1 for none (only
+        confirmed hypotheses; a person's only by a leg-like segment)."""
+        c = self.config
+        segments = frame.segments
+        out = np.full(rows.size, -1, np.intp)
+        if c.segment_gate <= 0 or segments.shape[0] == 0:
+            return out
+        person = hyp.is_person(c.person_kind_samples)[rows]
+        anchor = np.where(person[:, None], pred, hyp.position[rows])
+        d = pairwise_distances(anchor, segments)
+        d[person[:, None] & (frame.leg[None, :] < c.segment_min_leg)] = np.inf
+        near = d.argmin(axis=1)
+        gate = np.where(person, c.segment_gate, min(c.segment_gate, c.stop_radius))
+        ok = (d[np.arange(rows.size), near] <= gate) & hyp.confirmed[rows]
+        out[ok] = near[ok]
+        return out
+
+    def hold(self, hyp: Hypotheses, at: np.ndarray, t: float) -> Hypotheses:
+        """Support by the segments ``at`` (k, 2): standing within ``stop_radius``, else
+        moving to it; no weight or sample gained."""
+        if not len(hyp):
+            return hyp
+        still = np.hypot(*(at - hyp.position).T) <= self.config.stop_radius
+        if still.any():
+            rows = np.flatnonzero(still)
+            state, P = self.filter.hold(hyp.state[rows], hyp.P[rows], at[rows])
+            hyp.rows['state'][rows], hyp.rows['P'][rows] = state, P
+            hyp.rows['position'][rows] = at[rows]
+        if not still.all():
+            rows = np.flatnonzero(~still)
+            state, P, position = self.filter.correct(hyp.state[rows], hyp.P[rows],
+                                                     hyp.t_state[rows], at[rows], t)
+            hyp.rows['state'][rows], hyp.rows['P'][rows] = state, P
+            hyp.rows['position'][rows] = position
+        hyp.t_state = t
+        hyp.supported = False
+        hyp.stopped = still
+        return hyp
+
+    def coast(self, hyp: Hypotheses, pred: np.ndarray, frame: Frame) -> Hypotheses:
+        """No support: on along the velocity with a reduced weight."""
+        if not len(hyp):
+            return hyp
+        c, t, dt = self.config, frame.stamp, frame.dt
+        hyp.P = self.filter.coast(hyp.P)
+        hyp.position = pred
+        charged = np.clip(t - hyp.t_state - c.coast_grace, 0.0, dt) if c.coast_grace > 0 \
+            else dt
+        hyp.weight = np.maximum(hyp.weight - c.coast_rate * charged, 0.0)
+        hyp.supported, hyp.stopped = False, False
+        return hyp

@@ -1,0 +1,63 @@
+"""The detection message (``core.detections.Detections``) across the ``blobs`` topic: every
+field of motion blobs, people and segments comes back as it went, for rclpy and rosbags
+messages alike; a MarkerArray that is not a blobs message is refused."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_tracker.conversions import (bag_factory, detections_from_marker_array,
+                                       detections_to_marker_array, ros_factory)
+from laser_tracker.core.detections import Blobs, Detections, People, Segments
+from laser_tracker.tools.bag import TYPESTORE
+
+
+def message() -> Detections:
+    return Detections(
+        stamp=12.5, origin=np.array([1.0, -2.0, 0.75]), frame_id='odom', restarted=True,
+        stamp_ns=12_500_000_000,
+        blobs=Blobs(xy=np.array([[1.5, 0.25], [-3.0, 4.0]]), cells=np.array([3, 11]),
+                    extent=np.array([0.2, 0.6]), structure=np.array([np.nan, 1.25])),
+        people=People(xy=np.array([[2.0, 1.0], [0.5, -0.5]]), confidence=np.array([0.9, 0.45]),
+                      free=np.array([True, False]), spread=np.array([0.3, np.nan]),
+                      static=np.array([False, True])),
+        segments=Segments(xy=np.array([[1.0, 1.0], [2.0, 3.0], [4.0, 0.0]]),
+                          leg=np.array([0.8, 0.01, 0.0])))
+
+
+@pytest.mark.parametrize('factory', [ros_factory(), bag_factory(TYPESTORE)],
+                         ids=['rclpy', 'rosbags'])
+def test_every_field_crosses_the_blobs_topic(factory):
+    sent = message()
+    got = detections_from_marker_array(detections_to_marker_array(factory, sent))
+    assert (got.stamp, got.frame_id, got.restarted, got.stamp_ns) == \
+        (sent.stamp, sent.frame_id, sent.restarted, sent.stamp_ns)
+    np.testing.assert_allclose(got.origin, sent.origin, atol=1e-12)
+    b, s = got.blobs, sent.blobs
+    np.testing.assert_array_equal(b.xy, s.xy)
+    assert b.cells.tolist() == s.cells.tolist() and b.count == 2
+    np.testing.assert_allclose(b.extent, s.extent)
+    assert math.isnan(b.structure[0]) and b.structure[1] == s.structure[1]
+    p, q = got.people, sent.people
+    np.testing.assert_array_equal(p.xy, q.xy)
+    np.testing.assert_allclose(p.confidence, q.confidence)
+    assert p.free.tolist() == q.free.tolist() and p.static.tolist() == q.static.tolist()
+    assert p.spread[0] == pytest.approx(0.3) and math.isnan(p.spread[1])
+    np.testing.assert_array_equal(got.segments.xy, sent.segments.xy)
+    np.testing.assert_allclose(got.segments.leg, sent.segments.leg)
+
+
+def test_an_empty_scan_is_an_empty_message():
+    got = detections_from_marker_array(detections_to_marker_array(
+        ros_factory(), Detections(stamp=3.0, origin=np.zeros(3))))
+    assert got.blobs.count == 0 and len(got.people) == 0 and len(got.segments) == 0
+    assert got.stamp == 3.0 and not got.restarted
+
+
+def test_a_marker_array_without_the_scanner_is_not_a_blobs_message():
+    msg = detections_to_marker_array(ros_factory(), message())
+    msg.markers = [m for m in msg.markers if m.ns != 'scanner']
+    with pytest.raises(ValueError, match='not a blobs message'):
+        detections_from_marker_array(msg)
