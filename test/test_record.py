@@ -430,29 +430,22 @@ def test_full_disk_mid_write_leaves_nothing(tmp_path, capsys, monkeypatch):
     assert not rec.exists() and leftovers(tmp_path) == []
 
 
-def test_full_disk_while_closing_leaves_nothing(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize('step', ['closing', 'compacting'])
+def test_full_disk_while_closing_leaves_nothing(tmp_path, capsys, monkeypatch, step):
+    """The disk fills as rosbags closes the file, or while it is rewritten compact (after a
+    part of the compact copy is written)."""
     from rosbags.rosbag2 import Writer
-
-    def full(self):
-        raise OSError(errno.ENOSPC, 'No space left on device')
-
-    monkeypatch.setattr(Writer, 'close', full)
-    rec = tmp_path / 'rec'
-    assert run('replay', 'exp3_rotating_static', '--out', tmp_path / 'o', '--record', rec,
-               '--no-progress') == 2
-    err = one_error_line(capsys.readouterr().err)
-    assert 'No space left on device' in err
-    assert not rec.exists() and leftovers(tmp_path) == []
-
-
-def test_full_disk_while_compacting_leaves_nothing(tmp_path, capsys, monkeypatch):
     from laser_tracker.tools import compact_mcap
 
-    def full(recording, path, out, chunk_bytes):
-        out.file.write(b'\x89MCAP0\r\n' + bytes(1000))
+    def full(*args):
+        if step == 'compacting':
+            args[2].file.write(b'\x89MCAP0\r\n' + bytes(1000))    # _rewrite's output
         raise OSError(errno.ENOSPC, 'No space left on device')
 
-    monkeypatch.setattr(compact_mcap, '_rewrite', full)
+    if step == 'closing':
+        monkeypatch.setattr(Writer, 'close', full)
+    else:
+        monkeypatch.setattr(compact_mcap, '_rewrite', full)
     rec = tmp_path / 'rec'
     assert run('replay', 'exp3_rotating_static', '--out', tmp_path / 'o', '--record', rec,
                '--no-progress') == 2
