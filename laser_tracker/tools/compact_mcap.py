@@ -79,7 +79,8 @@ class _Output:
         return offset, self.file.tell() - offset
 
     def write_chunk(self, messages: bytearray, times: list[int], compress) -> None:
-        """A chunk of Message ``records`` logged from ``times[0]`` to ``times[-1]``."""
+        """A chunk of ``messages`` (Message records, ``compress``-ed) whose log times are
+        ``times``, in order."""
         from mcap.records import Chunk
 
         data = bytes(messages)
