@@ -147,16 +147,10 @@ class _RosFactory(MessageFactory):
 
 
 class _BagFactory(MessageFactory):
-    def __init__(self, typestore, position_step: float | None = None):
+    def __init__(self, typestore):
         self.typestore = typestore
         self._plans: dict[str, tuple] = {}    # type -> (class, [(field, default maker)])
-        # how the float64 fields of a type are stored (bag_factory's position_step)
-        self._rounding: dict[str, Any] = {}
-        if position_step:
-            on_grid = functools.partial(_on_grid, float(position_step))
-            self._rounding = {'geometry_msgs/msg/Point': on_grid,
-                              'geometry_msgs/msg/Vector3': on_grid,
-                              'geometry_msgs/msg/Quaternion': _float32}
+        self._rounding: dict[str, Any] = {}   # type -> how its float64 fields are stored
 
     def _plan(self, type_name: str) -> tuple:
         plan = self._plans.get(type_name)
@@ -205,14 +199,38 @@ class _BagFactory(MessageFactory):
         return np.ascontiguousarray(values, dtype=np.float32)
 
     def float64_array(self, values):
-        values = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
-        return _significant_bits(values, 10) if self._rounding else values
+        return np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
 
     def int8_array(self, values):
         return np.ascontiguousarray(values, dtype=np.int8).reshape(-1)
 
     def byte(self, value: int) -> Any:
         return int(value)
+
+
+class _RecordingFactory(_BagFactory):
+    """:func:`recording_factory`'s."""
+
+    def __init__(self, typestore, position_step: float):
+        super().__init__(typestore)
+        on_grid = functools.partial(_on_grid, float(position_step))
+        self._rounding = {'geometry_msgs/msg/Point': on_grid,
+                          'geometry_msgs/msg/Vector3': on_grid,
+                          'geometry_msgs/msg/Quaternion': _float32}
+
+    def _maker(self, desc):
+        if int(desc[0]) != 2 or desc[1] == 'std_msgs/msg/Header':   # restamp() changes those
+            return super()._maker(desc)
+        fresh, shared = super()._maker(desc), []
+
+        def default():                  # one message of defaults for all who leave it out
+            if not shared:
+                shared.append(fresh())
+            return shared[0]
+        return default
+
+    def float64_array(self, values):
+        return _significant_bits(super().float64_array(values), 10)
 
 
 def _on_grid(step: float, value: float) -> float:
@@ -259,17 +277,23 @@ def ros_factory() -> MessageFactory:
     return _ROS_FACTORY
 
 
-def bag_factory(typestore, position_step: float | None = None) -> MessageFactory:
-    """rosbags message classes of ``typestore``.
+def bag_factory(typestore) -> MessageFactory:
+    """rosbags message classes of ``typestore``."""
+    return _BagFactory(typestore)
 
-    With ``position_step`` (a recording's compact factory, e.g. 1/1024 m: about 1 mm), the
-    messages are built as a recording stores them: positions and vectors (geometry_msgs
-    Point, Vector3: m, m/s, rad/s) rounded to a multiple of ``position_step``, orientations
-    (Quaternion) to float32 precision (7 significant digits) and float64 arrays
-    (covariances) to 3 significant digits. Values with few significant bits take 2-4 bytes
-    of a compressed recording instead of 8: a compressed recording of a run is a third
-    smaller. The nodes publish full precision."""
-    return _BagFactory(typestore, position_step)
+
+def recording_factory(typestore, position_step: float) -> MessageFactory:
+    """rosbags message classes of ``typestore`` for messages written once and dropped (a
+    recording of a run): built as a recording stores them, and quickly.
+
+    Positions and vectors (geometry_msgs Point, Vector3: m, m/s, rad/s) are rounded to a
+    multiple of ``position_step`` (e.g. 1/1024 m: about 1 mm), orientations (Quaternion) to
+    float32 precision (7 significant digits) and float64 arrays (covariances) to 3
+    significant digits: values with few significant bits take 2-4 bytes of a compressed
+    recording instead of 8. A sub-message left out (a Marker's texture, mesh, lifetime, a
+    DELETEALL's pose; not a header) is one message of defaults shared by all: nothing may
+    change it."""
+    return _RecordingFactory(typestore, position_step)
 
 
 def header(factory: MessageFactory, stamp: float, frame_id: str):

@@ -38,10 +38,11 @@ lies where the tracker is scored against it).
 
 Size: the messages are built by the nodes' functions with :data:`FACTORY`, which stores
 positions to :data:`POSITION_STEP`, orientations at float32 precision and covariances to 3
-significant digits (``conversions.bag_factory``), and the mcap file is rewritten compact, in
-time order and without message indexes (``tools.compact_mcap``). The grids are the bulk of what is left
-(two 160 x 160 grids per scan): by default every :data:`DEFAULT_GRID_EVERY`-th scan has them,
-``grids=1`` (``--record-grids every``) gives all. sqlite3 storage is not compacted.
+significant digits (``conversions.recording_factory``), and the mcap file is rewritten
+compact, in time order and without message indexes (``tools.compact_mcap``). The grids are
+the bulk of what is left (two 160 x 160 grids per scan): by default every
+:data:`DEFAULT_GRID_EVERY`-th scan has them, ``grids=1`` (``--record-grids every``) gives all.
+sqlite3 storage is not compacted.
 
 The recording appears whole or not at all (``tools.bag.BagWriter``): an existing path is
 refused without ``overwrite``, an unwritable one fails before the replay starts, and a write
@@ -56,11 +57,11 @@ from pathlib import Path
 import numpy as np
 
 from laser_tracker.conversions import (OCCUPANCY_OF_CELL, MovingObject, PlanarTransform,
-                                       bag_factory, blobs_to_marker_array,
+                                       blobs_to_marker_array,
                                        difference_occupancy, ego_motion_to_msgs,
                                        evaluation_markers, objects_to_marker_array,
-                                       occupancy_grid_msg, restamp_ns, scan_to_msg, time_msg,
-                                       tracker_msgs, transforms_to_msg)
+                                       occupancy_grid_msg, recording_factory, restamp_ns,
+                                       scan_to_msg, time_msg, tracker_msgs, transforms_to_msg)
 from laser_tracker.core.geometry import compose, interpolate_poses, inverse
 from laser_tracker.errors import LaserTrackerError
 from laser_tracker.tools.bag import (FACTORY as BAG_FACTORY, GROUND_TRUTH_TOPIC, LATCHED_QOS,
@@ -71,7 +72,7 @@ from laser_tracker.tools.bag import (FACTORY as BAG_FACTORY, GROUND_TRUTH_TOPIC,
 POSITION_STEP = 2.0 ** -10
 #: The recording's messages: built as the nodes build them, positions rounded to
 #: POSITION_STEP, orientations to float32 precision, covariances to 3 significant digits.
-FACTORY = bag_factory(TYPESTORE, position_step=POSITION_STEP)
+FACTORY = recording_factory(TYPESTORE, POSITION_STEP)
 
 log = logging.getLogger(__name__)
 
@@ -106,9 +107,8 @@ TOPICS = {
     EVALUATION_TOPIC: 'visualization_msgs/msg/MarkerArray',
 }
 
-#: Grids on every N-th scan by default: on every scan they would be more than half of a
-#: recording (on leg_tracker's person_following: 8.2 MB with all, 3.4 MB with every 20th).
-DEFAULT_GRID_EVERY = 20
+#: Grids on every N-th scan by default: on every scan they would be most of a recording.
+DEFAULT_GRID_EVERY = 50
 GRID_CHOICES = 'every, none or N (every N-th scan)'
 
 
