@@ -305,6 +305,24 @@ def test_values_are_stored_to_a_millimetre_and_float32():
     assert np.count_nonzero(stored.pose.covariance) == np.count_nonzero(full.pose.covariance)
 
 
+def test_the_recording_factory_shares_only_the_defaults_nothing_changes():
+    """A Marker's unused texture and mesh are one message for all; its header (restamp()
+    changes it) and its point list are its own; the nodes' factory shares nothing."""
+    from laser_tracker.conversions import restamp_ns
+    from laser_tracker.tools.record import FACTORY as STORED
+
+    def two_markers(factory):
+        return [factory.make('visualization_msgs/msg/Marker', ns=ns) for ns in 'ab']
+
+    a, b = two_markers(STORED)
+    assert a.texture is b.texture and a.mesh_file is b.mesh_file
+    assert a.header is not b.header and a.points is not b.points
+    restamp_ns(STORED, a, 5_000_000_001)
+    assert (b.header.stamp.sec, b.header.stamp.nanosec) == (0, 0)
+    c, d = two_markers(FACTORY)
+    assert c.texture is not d.texture and c.mesh_file is not d.mesh_file
+
+
 def test_sqlite3_storage_without_grids_reads_back_with_rosbags(tmp_path):
     from rosbags.highlevel import AnyReader
 
