@@ -21,9 +21,11 @@ and the tracker's ``tracks`` topic, is documented in README.md ("Topics and sche
 from __future__ import annotations
 
 import array
+import functools
 import importlib
 import json
 import math
+import struct
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -103,6 +105,9 @@ class MessageFactory:
     def float32_array(self, values) -> Any:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def float64_array(self, values) -> Any:  # pragma: no cover - interface
+        raise NotImplementedError
+
     def int8_array(self, values) -> Any:  # pragma: no cover - interface
         raise NotImplementedError
 
@@ -132,6 +137,9 @@ class _RosFactory(MessageFactory):
         out.frombytes(np.ascontiguousarray(values, dtype=np.float32).tobytes())
         return out
 
+    def float64_array(self, values):
+        return [float(v) for v in np.asarray(values, dtype=np.float64).reshape(-1)]
+
     def int8_array(self, values):
         out = array.array('b')
         out.frombytes(np.ascontiguousarray(values, dtype=np.int8).tobytes())
@@ -141,7 +149,16 @@ class _RosFactory(MessageFactory):
 class _BagFactory(MessageFactory):
     def __init__(self, typestore):
         self.typestore = typestore
-        self._plans: dict[str, list] = {}     # type -> [(field, default maker)]
+        self._plans: dict[str, tuple] = {}    # type -> (class, [(field, default maker)])
+        self._rounding: dict[str, Any] = {}   # type -> how its float64 fields are stored
+
+    def _plan(self, type_name: str) -> tuple:
+        plan = self._plans.get(type_name)
+        if plan is None:
+            _, fielddefs = self.typestore.fielddefs[type_name]
+            plan = self._plans[type_name] = (self.typestore.types[type_name],
+                                             [(f, self._maker(d)) for f, d in fielddefs])
+        return plan
 
     def _maker(self, desc):
         """A function returning a fresh default value for a field of description ``desc``."""
@@ -152,8 +169,11 @@ class _BagFactory(MessageFactory):
             value = '' if base == 'string' else False if base == 'bool' else \
                 0.0 if base.startswith('float') else 0
             return lambda: value
-        if kind == 2:  # NAME
-            return lambda: self.make(detail)
+        if kind == 2:  # NAME: a message of defaults, built without make's checks
+            def default():
+                cls, plan = self._plan(detail)
+                return cls(**{name: field_default() for name, field_default in plan})
+            return default
         inner, count = detail
         if int(inner[0]) == 1 and inner[1][0] != 'string':
             dtype = _numpy_dtype(inner[1][0])
@@ -165,23 +185,80 @@ class _BagFactory(MessageFactory):
         return list
 
     def make(self, type_name: str, **fields):
-        plan = self._plans.get(type_name)
-        if plan is None:
-            _, fielddefs = self.typestore.fielddefs[type_name]
-            plan = self._plans[type_name] = [(f, self._maker(d)) for f, d in fielddefs]
+        cls, plan = self._plans.get(type_name) or self._plan(type_name)
+        rounding = self._rounding.get(type_name)
+        if rounding is not None:                # every field is a float64
+            for fname, value in fields.items():
+                fields[fname] = rounding(value)
         for fname, default in plan:
             if fname not in fields:
                 fields[fname] = default()
-        return self.typestore.types[type_name](**fields)
+        return cls(**fields)
 
     def float32_array(self, values):
         return np.ascontiguousarray(values, dtype=np.float32)
+
+    def float64_array(self, values):
+        return np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
 
     def int8_array(self, values):
         return np.ascontiguousarray(values, dtype=np.int8).reshape(-1)
 
     def byte(self, value: int) -> Any:
         return int(value)
+
+
+class _RecordingFactory(_BagFactory):
+    """:func:`recording_factory`'s."""
+
+    def __init__(self, typestore, position_step: float):
+        super().__init__(typestore)
+        on_grid = functools.partial(_on_grid, float(position_step))
+        self._rounding = {'geometry_msgs/msg/Point': on_grid,
+                          'geometry_msgs/msg/Vector3': on_grid,
+                          'geometry_msgs/msg/Quaternion': _float32}
+
+    def _maker(self, desc):
+        if int(desc[0]) != 2 or desc[1] == 'std_msgs/msg/Header':   # restamp() changes those
+            return super()._maker(desc)
+        fresh, shared = super()._maker(desc), []
+
+        def default():                  # one message of defaults for all who leave it out
+            if not shared:
+                shared.append(fresh())
+            return shared[0]
+        return default
+
+    def float64_array(self, values):
+        return _significant_bits(super().float64_array(values), 10)
+
+
+def _on_grid(step: float, value: float) -> float:
+    """``value`` rounded to a multiple of ``step`` (as it is when not finite)."""
+    try:
+        return round(value / step) * step
+    except (OverflowError, ValueError):
+        return value
+
+
+def _significant_bits(values: np.ndarray, bits: int) -> np.ndarray:
+    """``values`` (float64) rounded to ``bits`` bits after the leading one (10: about 3
+    significant digits); values beyond float32's range as they are."""
+    with np.errstate(over='ignore'):
+        single = values.astype(np.float32)
+    dropped = 23 - bits
+    mantissa = (single.view(np.uint32) + np.uint32(1 << (dropped - 1))) \
+        & np.uint32(0xFFFFFFFF ^ ((1 << dropped) - 1))
+    rounded = mantissa.view(np.float32).astype(np.float64)
+    return np.where(np.isfinite(single) & np.isfinite(rounded), rounded, values)
+
+
+def _float32(value: float) -> float:
+    """``value`` at float32 precision (as it is when too large for a float32)."""
+    try:
+        return struct.unpack('<f', struct.pack('<f', value))[0]
+    except OverflowError:
+        return value
 
 
 def _numpy_dtype(base: str):
@@ -203,6 +280,20 @@ def ros_factory() -> MessageFactory:
 def bag_factory(typestore) -> MessageFactory:
     """rosbags message classes of ``typestore``."""
     return _BagFactory(typestore)
+
+
+def recording_factory(typestore, position_step: float) -> MessageFactory:
+    """rosbags message classes of ``typestore`` for messages written once and dropped (a
+    recording of a run): built as a recording stores them, and quickly.
+
+    Positions and vectors (geometry_msgs Point, Vector3: m, m/s, rad/s) are rounded to a
+    multiple of ``position_step`` (e.g. 1/1024 m: about 1 mm), orientations (Quaternion) to
+    float32 precision (7 significant digits) and float64 arrays (covariances) to 3
+    significant digits: values with few significant bits take 2-4 bytes of a compressed
+    recording instead of 8. A sub-message left out (a Marker's texture, mesh, lifetime, a
+    DELETEALL's pose; not a header) is one message of defaults shared by all: nothing may
+    change it."""
+    return _RecordingFactory(typestore, position_step)
 
 
 def header(factory: MessageFactory, stamp: float, frame_id: str):
@@ -282,19 +373,21 @@ def odometry_from_msg(msg) -> PlanarOdometry:
                           child_frame_id=str(msg.child_frame_id))
 
 
+#: Where the terms of a planar (x, y, yaw) 3 x 3 covariance go in a flat 6 x 6 one.
+_PLANAR_IN_6X6 = (6 * np.array([0, 1, 5])[:, None] + np.array([0, 1, 5])).reshape(-1)
+
+
 def _covariance(factory: MessageFactory, cov) -> Any:
     """A 6 x 6 covariance (x, y, z, roll, pitch, yaw) as the message wants it, from the 6
     diagonal terms, a planar 3 x 3 (x, y, yaw) covariance, or None (zeros)."""
-    out = np.zeros((6, 6))
+    out = np.zeros(36)
     if cov is not None:
         cov = np.asarray(cov, dtype=float)
         if cov.shape == (3, 3):
-            idx = np.array([0, 1, 5])
-            out[np.ix_(idx, idx)] = cov
+            out[_PLANAR_IN_6X6] = cov.reshape(9)
         else:
-            out[np.diag_indices(6)] = cov.reshape(6)
-    flat = out.reshape(36)
-    return flat if isinstance(factory, _BagFactory) else flat.tolist()
+            out[::7] = cov.reshape(6)
+    return factory.float64_array(out)
 
 
 def planar_covariance(cov36) -> np.ndarray:
@@ -624,11 +717,9 @@ def number(extra: dict, key: str, default: float = 0.0) -> float:
 def joint_state_msg(factory: MessageFactory, stamp: float, names, positions, velocities=()):
     """sensor_msgs/JointState with the given joint names and positions (rad)."""
     f = factory
-    as_f64 = (lambda v: np.asarray(v, dtype=np.float64)) if isinstance(f, _BagFactory) \
-        else (lambda v: [float(x) for x in v])
     return f.make('sensor_msgs/msg/JointState', header=header(f, stamp, ''),
-                  name=list(names), position=as_f64(positions),
-                  velocity=as_f64(velocities), effort=as_f64(()))
+                  name=list(names), position=f.float64_array(positions),
+                  velocity=f.float64_array(velocities), effort=f.float64_array(()))
 
 
 def point_stamped_msg(factory: MessageFactory, stamp: float, frame_id: str, x: float, y: float,

@@ -7,6 +7,7 @@ import csv
 import errno
 import math
 import subprocess
+import zlib
 from collections import defaultdict
 from pathlib import Path
 
@@ -19,7 +20,8 @@ from laser_tracker.conversions import (detections_from_marker_array,
 from laser_tracker.core.geometry import compose
 from laser_tracker.tools.bag import FACTORY, TYPESTORE, BagWriter, iter_messages
 from laser_tracker.tools.cli import main
-from laser_tracker.tools.record import DEFAULT_GRID_EVERY, TOPICS
+from laser_tracker.tools.data import real_recording
+from laser_tracker.tools.record import DEFAULT_GRID_EVERY, POSITION_STEP, TOPICS
 
 from test_stages import ring_scan
 
@@ -147,12 +149,13 @@ def test_every_frame_is_connected_to_odom_and_the_chain_is_the_ego_motion(record
     truth = {header_ns(m): planar(m.pose.pose) for _, _, m in topics['/ground_truth/platform']}
     for t, _, ego in topics['/ego_motion'][::25]:
         at = tf_edges(topics, t)
-        scanner = find_transform(at, 'odom', 'laser')
-        assert scanner == pytest.approx(planar(ego.pose.pose), abs=1e-9)
+        scanner = find_transform(at, 'odom', 'laser')        # each stored to POSITION_STEP
+        assert scanner == pytest.approx(planar(ego.pose.pose), abs=POSITION_STEP)
         assert ego.child_frame_id == 'laser' and ego.header.frame_id == 'odom'
         # map -> odom puts the scanner where the truth has it: what evaluate scores against
         true_scanner = compose(truth[t], find_transform(at, 'base_link', 'laser'))
-        assert find_transform(at, 'map', 'laser') == pytest.approx(true_scanner, abs=1e-6)
+        assert find_transform(at, 'map', 'laser') == pytest.approx(true_scanner,
+                                                                   abs=2 * POSITION_STEP)
 
 
 def test_tracks_and_ego_motion_are_the_replays_own(recorded):
@@ -169,9 +172,9 @@ def test_tracks_and_ego_motion_are_the_replays_own(recorded):
         expected = sorted(rows.get(key, []), key=lambda r: int(r['track_id']))
         objects = sorted(objects_from_marker_array(hyp)[2], key=lambda o: o.id)
         assert [o.id for o in objects] == [int(r['track_id']) for r in expected]
-        for o, r in zip(objects, expected):
+        for o, r in zip(objects, expected):      # tracks.csv: 4 decimals
             assert (o.x, o.y, o.vx, o.vy) == pytest.approx(
-                tuple(float(r[k]) for k in ('x', 'y', 'vx', 'vy')), abs=6e-5)
+                tuple(float(r[k]) for k in ('x', 'y', 'vx', 'vy')), abs=POSITION_STEP / 2 + 5e-5)
             assert (o.extra['confirmed'], o.extra['kind']) == (r['confirmed'] == '1', r['kind'])
         confirmed = [o.id for o in objects if o.extra['confirmed']]
         assert sorted(o.id for o in objects_from_marker_array(trk)[2]) == confirmed
@@ -181,7 +184,7 @@ def test_tracks_and_ego_motion_are_the_replays_own(recorded):
             {o.id: f'{o.id}' + ('' if o.extra['confirmed'] else '?') for o in objects}
         e = ego[key]
         assert planar(odo.pose.pose) == pytest.approx(
-            [float(e['x']), float(e['y']), float(e['theta'])], abs=2e-6)
+            [float(e['x']), float(e['y']), float(e['theta'])], abs=POSITION_STEP / 2 + 5e-7)
     assert confirmed_seen > 100
 
 
@@ -231,6 +234,93 @@ def test_evaluation_markers_are_the_evaluations_verdicts(recorded):
     assert counts['matches'] == mot['num_matches'] + mot['num_switches'] > 100
     assert counts['misses'] == mot['num_misses']
     assert counts['false_positives'] == mot['num_false_positives']
+
+
+def test_the_file_is_in_time_order_without_message_index_and_rosbags_reads_it(recorded):
+    """What keeps it small and what readers without a message index need (Foxglove reads
+    such a file whole, ``ros2 bag play`` in file order): every message in time order in the
+    file, the evaluation (computed last) included; a summary with counts and a valid CRC."""
+    from mcap.reader import make_reader
+    from mcap.records import ChunkIndex, Footer, MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    _, rec, topics = recorded
+    (path,) = rec.glob('*.mcap')
+    with path.open('rb') as fh:
+        order = [(m.log_time, c.topic) for _, c, m in make_reader(fh).iter_messages(
+            log_time_order=False)]
+    assert [t for t, _ in order] == sorted(t for t, _ in order)
+    assert {topic for _, topic in order} == set(TOPICS)
+    with path.open('rb') as fh:
+        records = list(StreamReader(fh, skip_magic=False, emit_chunks=True).records)
+    assert not [r for r in records if isinstance(r, (MessageIndex, ChunkIndex))]
+    with path.open('rb') as fh:
+        summary = make_reader(fh).get_summary()
+    counts = {c.topic: summary.statistics.channel_message_counts[i]
+              for i, c in summary.channels.items()}
+    assert counts == {topic: len(items) for topic, items in topics.items()}
+    # the footer's CRC covers the summary and the footer up to it (MCAP specification)
+    data, footer = path.read_bytes(), records[-1]
+    assert isinstance(footer, Footer)
+    assert footer.summary_crc == zlib.crc32(data[footer.summary_start:len(data) - 8 - 4])
+    read = [(topic, t) for topic, t, _ in iter_messages(rec, TOPICS)]     # rosbags
+    assert sorted(read, key=lambda x: x[1]) == read and len(read) == len(order)
+
+
+def test_the_compact_file_orders_what_was_written_out_of_order(tmp_path):
+    """Equal stamps keep the order they were written in."""
+    from mcap.reader import make_reader
+
+    rec = tmp_path / 'rec'
+    written = [(3, 'c'), (1, 'a'), (2, 'b1'), (5, 'e'), (2, 'b2'), (4, 'd')]
+    with BagWriter(rec, storage='mcap', compact=True) as bag:
+        for t, text in written:
+            bag.write('/text', FACTORY.make('std_msgs/msg/String', data=text), t)
+    with next(rec.glob('*.mcap')).open('rb') as fh:
+        got = [(m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages(
+            log_time_order=False)]
+    assert [t for t, _ in got] == [1, 2, 2, 3, 4, 5]
+    assert [TYPESTORE.deserialize_cdr(data, 'std_msgs/msg/String').data for _, data in got] \
+        == ['a', 'b1', 'b2', 'c', 'd', 'e']
+
+
+def test_values_are_stored_to_a_millimetre_and_float32():
+    """Positions and vectors on the POSITION_STEP grid, orientations at float32 precision,
+    covariances to 3 significant digits; the nodes' factory keeps full precision."""
+    from laser_tracker.conversions import PlanarOdometry, odometry_to_msg
+    from laser_tracker.tools.record import FACTORY as STORED
+
+    odom = PlanarOdometry(stamp=5.0, x=1.23456789, y=-7.654321, theta=0.3456789, vx=0.1234567)
+    cov = np.array([[1.23456e-3, 2e-7, 0.0], [2e-7, 4.5678e-3, 0.0], [0.0, 0.0, 9.87654e-5]])
+    full, stored = odometry_to_msg(FACTORY, odom, cov), odometry_to_msg(STORED, odom, cov)
+    assert (full.pose.pose.position.x, full.pose.pose.position.y) == (1.23456789, -7.654321)
+    p = stored.pose.pose.position
+    for value, exact in ((p.x, 1.23456789), (p.y, -7.654321), (stored.twist.twist.linear.x,
+                                                                0.1234567)):
+        assert (value / POSITION_STEP).is_integer() and abs(value - exact) <= POSITION_STEP / 2
+    q, exact_q = stored.pose.pose.orientation, full.pose.pose.orientation
+    assert float(np.float32(q.z)) == q.z and q.z == pytest.approx(exact_q.z, rel=1e-7)
+    assert yaw_from_quaternion(q) == pytest.approx(0.3456789, abs=1e-6)
+    assert np.allclose(stored.pose.covariance, full.pose.covariance, rtol=2 ** -11, atol=0)
+    assert np.count_nonzero(stored.pose.covariance) == np.count_nonzero(full.pose.covariance)
+
+
+def test_the_recording_factory_shares_only_the_defaults_nothing_changes():
+    """A Marker's unused texture and mesh are one message for all; its header (restamp()
+    changes it) and its point list are its own; the nodes' factory shares nothing."""
+    from laser_tracker.conversions import restamp_ns
+    from laser_tracker.tools.record import FACTORY as STORED
+
+    def two_markers(factory):
+        return [factory.make('visualization_msgs/msg/Marker', ns=ns) for ns in 'ab']
+
+    a, b = two_markers(STORED)
+    assert a.texture is b.texture and a.mesh_file is b.mesh_file
+    assert a.header is not b.header and a.points is not b.points
+    restamp_ns(STORED, a, 5_000_000_001)
+    assert (b.header.stamp.sec, b.header.stamp.nanosec) == (0, 0)
+    c, d = two_markers(FACTORY)
+    assert c.texture is not d.texture and c.mesh_file is not d.mesh_file
 
 
 def test_sqlite3_storage_without_grids_reads_back_with_rosbags(tmp_path):
@@ -290,7 +380,8 @@ def test_annotated_people_become_ground_truth_markers_at_their_scan(tmp_path):
     for k, (_, _, msg) in enumerate(truth):
         (person,) = objects_from_marker_array(msg)[2]
         assert msg.markers[1].header.frame_id == 'laser'
-        assert (person.id, person.x, person.y) == pytest.approx((7, 2.0, -2.0 + 0.15 * k))
+        assert (person.id, person.x, person.y) == pytest.approx((7, 2.0, -2.0 + 0.15 * k),
+                                                                abs=POSITION_STEP / 2)
     verdicts = defaultdict(int)
     for _, _, msg in topics['/evaluation']:
         assert all(m.header.frame_id == 'laser' for m in msg.markers[1:])
@@ -357,18 +448,27 @@ def test_full_disk_mid_write_leaves_nothing(tmp_path, capsys, monkeypatch):
     assert not rec.exists() and leftovers(tmp_path) == []
 
 
-def test_full_disk_while_closing_leaves_nothing(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize('step', ['closing', 'compacting'])
+def test_full_disk_while_closing_leaves_nothing(tmp_path, capsys, monkeypatch, step):
+    """The disk fills as rosbags closes the file, or while it is rewritten compact (after a
+    part of the compact copy is written)."""
     from rosbags.rosbag2 import Writer
+    from laser_tracker.tools import compact_mcap
 
-    def full(self):
+    def full(*args):
+        if step == 'compacting':
+            args[2].file.write(b'\x89MCAP0\r\n' + bytes(1000))    # _rewrite's output
         raise OSError(errno.ENOSPC, 'No space left on device')
 
-    monkeypatch.setattr(Writer, 'close', full)
+    if step == 'closing':
+        monkeypatch.setattr(Writer, 'close', full)
+    else:
+        monkeypatch.setattr(compact_mcap, '_rewrite', full)
     rec = tmp_path / 'rec'
     assert run('replay', 'exp3_rotating_static', '--out', tmp_path / 'o', '--record', rec,
                '--no-progress') == 2
     err = one_error_line(capsys.readouterr().err)
-    assert 'No space left on device' in err
+    assert 'No space left on device' in err and str(rec) in err
     assert not rec.exists() and leftovers(tmp_path) == []
 
 
@@ -412,3 +512,27 @@ def test_misused_record_options_are_one_line_errors(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and '--evaluate needs' in err
     assert not out.exists() and not (tmp_path / 'r').exists()
 
+
+
+# ------------------------------------------------------------------ a real run's size
+
+
+FOLLOWING = real_recording('leg_tracker/person_following_outdoor_1.bag')
+
+
+@pytest.mark.skipif(not FOLLOWING.exists(), reason=f'{FOLLOWING} not available')
+def test_a_real_run_is_recorded_in_at_most_three_times_its_input(tmp_path):
+    """leg_tracker's person_following (7,170 scans, 12 minutes) at default settings."""
+    from mcap.reader import make_reader
+
+    rec = tmp_path / 'rec'
+    assert run('replay', FOLLOWING, '--scan-topic', '/scan_base2', '--out', tmp_path / 'o',
+               '--record', rec, '--no-progress') == 0
+    size = sum(p.stat().st_size for p in rec.iterdir())
+    assert size <= 3 * FOLLOWING.stat().st_size
+    with next(rec.glob('*.mcap')).open('rb') as fh:
+        summary = make_reader(fh).get_summary()
+    counts = {c.topic: summary.statistics.channel_message_counts[i]
+              for i, c in summary.channels.items()}
+    assert counts['/scan'] == counts['/ego_motion'] == counts['/tracks/markers'] == 7170
+    assert counts['/grid'] == math.ceil(7170 / DEFAULT_GRID_EVERY)

@@ -7,6 +7,7 @@ visualization_msgs/MarkerArray (the moving-object schema of ``laser_tracker.conv
 """
 from __future__ import annotations
 
+import functools
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -23,6 +24,7 @@ from laser_tracker.conversions import (MovingObject, bag_factory, objects_from_m
 from laser_tracker.core.scan import Scan, ScanError
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools.atomic import atomic_path
+from laser_tracker.tools.compact_mcap import compact_mcap, zstd
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 FACTORY = bag_factory(TYPESTORE)
@@ -40,18 +42,8 @@ LATCHED_QOS = (Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
                    QosLiveliness.AUTOMATIC, QosTime(0, 0), False),)
 
 
-#: zstd level of compressed recordings: on a recording of the whole pipeline, 14 % smaller
-#: than rosbags' default (3) for 0.6 s more per 80 MB; 19 saves 10 % more for 25 s more.
-ZSTD_LEVEL = 9
-
-
-def _zstd_compressor(level: int):
-    import functools
-    try:
-        from compression import zstd          # Python 3.14
-    except ImportError:
-        from backports import zstd            # what rosbags uses before 3.14
-    return functools.partial(zstd.compress, level=level)
+#: zstd level of the chunks a compact recording is first written with (rewritten after).
+FAST_ZSTD_LEVEL = 1
 
 
 class BagWriter:
@@ -59,33 +51,37 @@ class BagWriter:
 
     ``with BagWriter(path) as bag: bag.write('/scan', msg, stamp)``: the recording is written in
     a temporary sibling folder and moved to ``path`` on success; after an error (in the block,
-    or while closing: a full disk) nothing is left. ``compress``: zstd-compressed chunks (mcap
-    storage only; Foxglove and ``ros2 bag`` read them).
+    or while closing: a full disk) nothing is left. ``compact`` (mcap storage only): once
+    written, the file is rewritten in time order, zstd-compressed, without message indexes
+    (``tools.compact_mcap``: Foxglove, ``ros2 bag`` and rosbags read it), whatever order the
+    messages were written in.
     """
 
     def __init__(self, path: str | Path, storage: str = 'sqlite3', overwrite: bool = False,
-                 compress: bool = False):
+                 compact: bool = False):
         if storage not in ('sqlite3', 'mcap'):
             raise ValueError(f'storage must be sqlite3 or mcap, got {storage!r}')
         self.path, self.storage, self.overwrite = Path(path), storage, overwrite
-        self.compress = compress and storage == 'mcap'
+        self.compact = compact and storage == 'mcap'
         self._connections = {}
         self._atomic = None
+        self._tmp: Path | None = None
         self._writer = None
 
     def __enter__(self) -> BagWriter:
         from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
         self._atomic = atomic_path(self.path, overwrite=self.overwrite)
-        tmp = self._atomic.__enter__()
+        self._tmp = tmp = self._atomic.__enter__()
         try:
             plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
             self._writer = Writer(tmp, version=8, storage_plugin=plugin)
-            if self.compress:
+            if self.compact:
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
-            if self.compress and hasattr(self._writer.storage, 'compressor'):
-                self._writer.storage.compressor = _zstd_compressor(ZSTD_LEVEL)
+            if self.compact and hasattr(self._writer.storage, 'compressor'):
+                self._writer.storage.compressor = functools.partial(zstd().compress,
+                                                                    level=FAST_ZSTD_LEVEL)
         except BaseException as exc:
             self._atomic.__exit__(type(exc), exc, exc.__traceback__)
             raise
@@ -111,6 +107,8 @@ class BagWriter:
         if exc_type is None:
             try:
                 self._writer.close()
+                if self.compact:
+                    compact_mcap(self._tmp)
             except BaseException as err:       # e.g. the disk filled while closing
                 self._abort()
                 self._atomic.__exit__(type(err), err, err.__traceback__)

@@ -34,9 +34,15 @@ topic                       type                                   content
 
 Frames: ``odom`` (tracks, blobs, ego-motion), the scanner's (scans, grids), ``map`` (simulated
 ground truth: map -> odom is the correction ``laser-tracker evaluate`` applies, so the truth
-lies where the tracker is scored against it). Storage: mcap with zstd-compressed chunks by
-default, or sqlite3. The grids are the bulk of a recording (two 160 x 160 grids per scan);
-by default every :data:`DEFAULT_GRID_EVERY`-th scan has them, ``grids='every'`` gives all.
+lies where the tracker is scored against it).
+
+Size: the messages are built by the nodes' functions with :data:`FACTORY`, which stores
+positions to :data:`POSITION_STEP`, orientations at float32 precision and covariances to 3
+significant digits (``conversions.recording_factory``), and the mcap file is rewritten
+compact, in time order and without message indexes (``tools.compact_mcap``). The grids are
+the bulk of what is left (two 160 x 160 grids per scan): by default every
+:data:`DEFAULT_GRID_EVERY`-th scan has them, ``grids=1`` (``--record-grids every``) gives all.
+sqlite3 storage is not compacted.
 
 The recording appears whole or not at all (``tools.bag.BagWriter``): an existing path is
 refused without ``overwrite``, an unwritable one fails before the replay starts, and a write
@@ -50,16 +56,23 @@ from pathlib import Path
 
 import numpy as np
 
-from laser_tracker.conversions import (OCCUPANCY_OF_CELL, PlanarTransform,
+from laser_tracker.conversions import (OCCUPANCY_OF_CELL, MovingObject, PlanarTransform,
                                        detections_to_marker_array, difference_occupancy,
                                        ego_motion_to_msgs,
                                        evaluation_markers, objects_to_marker_array,
-                                       MovingObject, occupancy_grid_msg, restamp_ns,
+                                       occupancy_grid_msg, recording_factory, restamp_ns,
                                        scan_to_msg, time_msg, tracker_msgs, transforms_to_msg)
 from laser_tracker.core.geometry import compose, interpolate_poses, inverse
 from laser_tracker.errors import LaserTrackerError
-from laser_tracker.tools.bag import (FACTORY, GROUND_TRUTH_TOPIC, LATCHED_QOS,
-                                     PLATFORM_TRUTH_TOPIC, TF_STATIC_TOPIC, BagWriter)
+from laser_tracker.tools.bag import (FACTORY as BAG_FACTORY, GROUND_TRUTH_TOPIC, LATCHED_QOS,
+                                     PLATFORM_TRUTH_TOPIC, TF_STATIC_TOPIC, TYPESTORE,
+                                     BagWriter)
+
+#: Positions in the recording are multiples of this (m; also m/s, rad/s).
+POSITION_STEP = 2.0 ** -10
+#: The recording's messages: built as the nodes build them, positions rounded to
+#: POSITION_STEP, orientations to float32 precision, covariances to 3 significant digits.
+FACTORY = recording_factory(TYPESTORE, POSITION_STEP)
 
 log = logging.getLogger(__name__)
 
@@ -94,9 +107,8 @@ TOPICS = {
     EVALUATION_TOPIC: 'visualization_msgs/msg/MarkerArray',
 }
 
-#: Grids on every N-th scan by default: on every scan they would be more than half of a
-#: recording (on leg_tracker's person_following: 15 MB with all, 6.9 MB with every 10th).
-DEFAULT_GRID_EVERY = 10
+#: Grids on every N-th scan by default: on every scan they would be most of a recording.
+DEFAULT_GRID_EVERY = 50
 GRID_CHOICES = 'every, none or N (every N-th scan)'
 
 
@@ -156,7 +168,7 @@ class RunRecorder:
     def __enter__(self) -> RunRecorder:
         try:                    # BagWriter checks the output first (tools.atomic.check_output)
             self._bag = BagWriter(self.path, storage=self.options.storage,
-                                  overwrite=self.options.overwrite, compress=True).__enter__()
+                                  overwrite=self.options.overwrite, compact=True).__enter__()
         except OSError as exc:
             raise LaserTrackerError(f'{self.path}: cannot write the recording here: '
                                     f'{exc.strerror or exc}') from None
@@ -279,8 +291,8 @@ class RunRecorder:
         pose = np.asarray(ego.pose, float)
         if not self._static_done and base is not None:
             mount = PlanarTransform(stamp, base, scanner, *self.mount)
-            self._write(TF_STATIC_TOPIC, _stamped(transforms_to_msg(FACTORY, [mount]), ns), ns,
-                        LATCHED_QOS)
+            self._write(TF_STATIC_TOPIC, _stamped(transforms_to_msg(BAG_FACTORY, [mount]), ns),
+                        ns, LATCHED_QOS)       # once: at full precision
         self._static_done = True
         child = base or scanner
         at = compose(pose, inverse(self.mount)) if base else pose
