@@ -489,6 +489,49 @@ def test_a_really_full_tmpfs_leaves_nothing(tmp_path, capsys):
         subprocess.run(['umount', str(mnt)], capture_output=True)
 
 
+def test_ctrl_c_during_a_recorded_replay_leaves_nothing(tmp_path):
+    """The recording is written by a second process: Ctrl-C (SIGINT to the whole process
+    group, as a terminal sends it) stops both, and neither the recording nor a temporary file
+    is left."""
+    import os
+    import signal
+    import sys
+    import time
+
+    rec = tmp_path / 'rec'
+    proc = subprocess.Popen([sys.executable, '-m', 'laser_tracker.tools.cli', 'replay',
+                             'crossing_walkers', '--out', str(tmp_path / 'o'),
+                             '--record', str(rec), '--record-grids', 'every', '--no-progress'],
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 60.0
+    while not any(tmp_path.glob('.rec*')) and time.monotonic() < deadline:
+        time.sleep(0.05)                          # the recording has started
+    assert proc.poll() is None, proc.stderr.read()
+    time.sleep(0.5)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode != 0 and 'Traceback' not in err, err
+    assert not rec.exists() and leftovers(tmp_path) == []
+
+
+def test_a_failure_in_the_recording_process_is_an_error_not_a_recording(tmp_path,
+                                                                       monkeypatch):
+    """A bug while building a message (in the recording process) fails the replay with the
+    child's traceback; nothing that looks complete is left."""
+    from laser_tracker.tools import record
+    from laser_tracker.tools.replay import replay_bag
+
+    def broken(*args, **kwargs):
+        raise ValueError('a bug in a conversion')
+
+    monkeypatch.setattr(record, 'ego_motion_to_msgs', broken)
+    rec = tmp_path / 'rec'
+    with pytest.raises(RuntimeError, match='a bug in a conversion'):
+        replay_bag('exp3_rotating_static', out_dir=tmp_path / 'o', progress=False,
+                   record=record.RecordOptions(rec))
+    assert not rec.exists() and leftovers(tmp_path) == []
+
+
 def test_misused_record_options_are_one_line_errors(tmp_path, capsys):
     out = tmp_path / 'o'
     cases = [

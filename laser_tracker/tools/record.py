@@ -50,6 +50,7 @@ that fails (a full disk) is one error line with nothing left behind.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -229,12 +230,12 @@ class RunRecorder:
         every = self.options.grids
         return every > 0 and scan_index % every == 0
 
-    def scan_message(self, index: int, msg, scan) -> None:
-        """An input scan (``msg``; ``scan`` its ``core.scan.Scan``), the ``index``-th of its
-        topic: written as received (Jazzy definitions) with the annotations placed at it."""
+    def scan_message(self, index: int, intensities: np.ndarray, scan) -> None:
+        """An input scan (``scan``, its ``core.scan.Scan``; ``intensities`` as received,
+        :func:`intensities_of`), the ``index``-th of its topic: written as received (Jazzy
+        definitions) with the annotations placed at it."""
         frame = scan.frame_id.strip('/')
         self.scan_frame = self.scan_frame or frame
-        intensities = np.asarray(getattr(msg, 'intensities', ()), dtype=np.float32)
         out = scan_to_msg(FACTORY, scan, intensities
                           if intensities.size == scan.n_beams else None)
         out.header.frame_id = frame
@@ -344,6 +345,184 @@ class RunRecorder:
         return {'path': str(self.path), 'storage': self.options.storage,
                 'grids_every': self.options.grids, 'bytes': size,
                 'messages': dict(sorted(self.counts.items()))}
+
+
+def intensities_of(msg) -> np.ndarray:
+    """A LaserScan message's intensities as float32 (empty when it has none)."""
+    return np.asarray(getattr(msg, 'intensities', ()), dtype=np.float32)
+
+
+class RecordingProcess:
+    """A :class:`RunRecorder` in a child process, with the same interface: the replay hands
+    it each scan's results and goes on while the child builds, serialises, compresses and
+    writes the messages, so that recording costs little more wall time than the replay on a
+    machine with a second core.
+
+    Calls that return something (``start``'s topics, ``evaluation``, ``summary``) wait for
+    the child; the others are queued through a pipe (its buffer bounds what is in flight).
+    The child ignores Ctrl-C: the replay decides, and leaving the ``with`` block with an
+    exception (or dying) makes the child remove the partial recording. An error in the child
+    (a full disk) is raised in the replay at its next call."""
+
+    def __init__(self, options: RecordOptions):
+        self.options = options
+        self._conn = None
+        self._proc = None
+        self._topics: list[str] = []
+        self._calls = 0
+        self._summary: dict | None = None
+
+    def __enter__(self) -> RecordingProcess:
+        import multiprocessing
+
+        ctx = multiprocessing.get_context('fork')
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(self.options, child), daemon=True,
+                                 name='laser-tracker recorder')
+        self._proc.start()
+        child.close()
+        try:
+            self._call('__enter__')
+        except (EOFError, OSError):
+            raise LaserTrackerError(f'{self.options.path}: cannot write the recording: the '
+                                    'recording process did not start') from None
+        finally:
+            if not self._proc.is_alive():
+                self._proc.join()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            if exc_type is None:
+                self._summary = self._call('__exit__', None, None, None)
+            else:          # the replay failed or was interrupted: nothing is left behind
+                try:
+                    self._call('__exit__', LaserTrackerError, LaserTrackerError('aborted'),
+                               None)
+                except (LaserTrackerError, RuntimeError):
+                    pass        # the replay's own error is the one to report
+        except (EOFError, OSError):
+            if exc_type is None:
+                raise LaserTrackerError(f'{self.options.path}: recording not written: the '
+                                        'recording process ended unexpectedly') from None
+        finally:
+            self._conn.close()
+            self._proc.join(timeout=10.0)
+        return False
+
+    def start(self, *args) -> None:
+        self._topics = self._call('start', *args)
+
+    @property
+    def passthrough_topics(self) -> list[str]:
+        return self._topics
+
+    def wants_grids(self, scan_index: int) -> bool:
+        return RunRecorder.wants_grids(self, scan_index)
+
+    def scan_message(self, index: int, intensities, scan) -> None:
+        self._cast('scan_message', index, intensities, scan)
+
+    def passthrough(self, topic: str, receive_ns: int, msg) -> None:
+        self._cast('passthrough', topic, receive_ns, msg)
+
+    def step(self, result, tracks) -> None:
+        det = result.detection
+        self._cast('step', StepRecord(result.scan, result.ego, result.stamp,
+                                      dataclasses.replace(det, persons=None)), tracks)
+
+    def evaluation(self, ev) -> int:
+        return self._call('evaluation', ev)
+
+    def summary(self) -> dict:
+        """As :meth:`RunRecorder.summary`; after the ``with`` block, of the written file."""
+        return self._summary if self._summary is not None else self._call('summary')
+
+    def _cast(self, name: str, *args) -> None:
+        while self._conn.poll():              # the child failed: say so now
+            self._answer(self._conn.recv())
+        self._conn.send((None, name, args))
+
+    def _call(self, name: str, *args):
+        self._calls += 1
+        self._conn.send((self._calls, name, args))
+        while True:
+            reply = self._conn.recv()
+            value = self._answer(reply)
+            if reply[1] == self._calls:
+                return value
+
+    @staticmethod
+    def _answer(reply):
+        kind, _, value = reply
+        if kind == 'ok':
+            return value
+        is_ours, text = value
+        if is_ours:
+            raise LaserTrackerError(text)
+        raise RuntimeError(f'the recording process failed: {text}')
+
+
+@dataclass
+class StepRecord:
+    """What :meth:`RunRecorder.step` reads of a ``core.pipeline.StepResult``."""
+
+    scan: object
+    ego: object
+    stamp: float
+    detection: object
+
+
+def _serve(options: RecordOptions, conn) -> None:
+    """The recording process: a RunRecorder answering :class:`RecordingProcess`. Replies
+    ``(kind, call number, value)``; a failed queued call is said once, unasked (call number
+    None), and the calls after it are skipped (their replies are errors)."""
+    import signal
+    import traceback
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    recorder = RunRecorder(options)
+    entered = False
+    failure = None
+    while True:
+        try:
+            number, name, args = conn.recv()
+        except (EOFError, OSError):            # the replay is gone: leave nothing behind
+            if entered:
+                recorder.__exit__(LaserTrackerError, LaserTrackerError('aborted'), None)
+            return
+        reply = None
+        if failure is not None and name != '__exit__':
+            reply = ('error', number, failure)
+        else:
+            try:
+                value = getattr(recorder, name)(*args)
+                if name == 'start':
+                    value = recorder.passthrough_topics
+                elif name == '__exit__':
+                    value = recorder.summary()        # the recording as written
+                elif name == '__enter__':
+                    value = None
+                entered = name != '__exit__' and (entered or name == '__enter__')
+                reply = ('ok', number, value)
+            except LaserTrackerError as exc:
+                reply = ('error', number, (True, str(exc)))
+            except Exception:  # noqa: BLE001 - a bug: its traceback, in the replay
+                reply = ('error', number, (False, traceback.format_exc()))
+            if reply[0] == 'error':
+                entered = entered and name != '__exit__'
+                if failure is None and number is None:
+                    failure = reply[2]
+                    number = -1                  # said once, unasked
+                else:
+                    failure = failure or reply[2]
+        if number is not None:
+            try:
+                conn.send(reply)
+            except OSError:
+                return
+        if name == '__exit__':
+            return
 
 
 def _stamped(tf_message, ns: int):

@@ -197,11 +197,11 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
     if record is None:
         return _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress,
                        figure_scan, on_confirmed)
-    from laser_tracker.tools.record import RunRecorder
+    from laser_tracker.tools.record import RecordingProcess
 
     if record.evaluate and out_dir is None:
         raise ValueError('record.evaluate needs out_dir (the evaluation reads the outputs)')
-    with RunRecorder(record) as recorder:
+    with RecordingProcess(record) as recorder:
         summary = _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress,
                           figure_scan, on_confirmed, recorder)
         if record.evaluate:
@@ -217,7 +217,8 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
 
 def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_scan,
             on_confirmed, recorder=None) -> dict:
-    """:func:`replay_bag`, feeding ``recorder`` (``tools.record.RunRecorder``) when given."""
+    """:func:`replay_bag`, feeding ``recorder`` (``tools.record.RecordingProcess``) when
+    given."""
     from laser_tracker.tools.bag import (ODOM_TOPIC, ODOMETRY_MSGTYPE, SCAN_MSGTYPE,
                                          iter_messages, require_topic, topics)
     from laser_tracker.tools.mount import recording_mount
@@ -345,7 +346,8 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                 if want:
                     state['figure'] = scan
                 if recorder is not None:
-                    recorder.scan_message(scan_index, msg, scan)
+                    from laser_tracker.tools.record import intensities_of
+                    recorder.scan_message(scan_index, intensities_of(msg), scan)
                     want = want or recorder.wants_grids(scan_index)
                 process(pipeline.add_scan(scan, arrival, want))
             process(pipeline.flush())
