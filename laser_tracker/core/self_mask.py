@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.config import ConfigError, param
+from laser_tracker.core import jit
 from laser_tracker.core.scan import Scan, beam_table
 
 #: Points closer than this (m) along the scan are one surface (for "lies within reach").
@@ -135,7 +136,9 @@ class SelfMask:
             corners = np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
         self._footprint = corners
         self._geometry = None
+        self._ranges = None
         self.limits = np.zeros(0)
+        jit.compiled('self-mask kernel', _exercise_learn)
 
     # ------------------------------------------------------------------ state
     def _fit(self, scan: Scan) -> None:
@@ -150,6 +153,7 @@ class SelfMask:
         self.body = np.full(n, np.nan)       # learnt body range per beam
         self.beyond = np.zeros(n)            # world travel seen only beyond the body
         self.limits = self._footprint_limits(scan)
+        self._ranges = None
 
     def _footprint_limits(self, scan: Scan) -> np.ndarray:
         """Per beam, the range at which it leaves the footprint (NaN: it does not cross it)."""
@@ -203,7 +207,7 @@ class SelfMask:
 
     def learn(self, scan: Scan, motion) -> None:
         """Learn from ``scan`` (as received) and the scanner's motion since the previous
-        scan (its pose in the previous scanner frame)."""
+        scan (its pose in the previous scanner frame): one kernel call, :func:`_learn`."""
         c = self.config
         if not c.learn:
             return
@@ -211,33 +215,13 @@ class SelfMask:
         x, y, th = (float(v) for v in motion)
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
             return
-        r = scan.ranges
         _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
                                  scan.n_beams)
-        with np.errstate(invalid='ignore'):
-            hit = np.isfinite(r) & (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
-        px, py = np.where(hit, r, 0.0) * cos, np.where(hit, r, 0.0) * sin
-        # How far a static point at each return moves in the scanner frame over this step.
-        cth, sth = math.cos(th), math.sin(th)
-        qx, qy = px - x, py - y
-        moved = np.hypot(cth * qx + sth * qy - px, -sth * qx + cth * qy - py)
-        near = hit & (r <= c.reach) & _surface_within(hit, r, px, py, c.reach)
-        with np.errstate(invalid='ignore'):
-            kept = near & (np.abs(r - self.anchor) <= c.tolerance)
-        # A beam without a return keeps its evidence (a body part seen at grazing incidence
-        # flickers); a return that moved, or lies on the world, starts afresh.
-        self.kept = np.where(kept, self.kept + moved, np.where(hit, 0.0, self.kept))
-        self.anchor = np.where(near & ~kept, r, np.where(hit & ~near, np.nan, self.anchor))
-        learnt = self.kept >= c.travel
-        self.body = np.where(learnt, np.fmax(self.body, self.anchor), self.body)
-        # A learnt beam that sees only the world beyond its body range is given up.
-        with np.errstate(invalid='ignore'):
-            past = hit & (r > self.body + c.tolerance)
-            on_body = hit & (r <= self.body + c.tolerance)
-        self.beyond = np.where(past, self.beyond + moved, np.where(on_body, 0.0, self.beyond))
-        forget = self.beyond >= FORGET_FACTOR * c.travel
-        self.body[forget] = np.nan
-        self.beyond[forget] = 0.0
+        if _learn(scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+                  x, y, th, float(c.reach), float(c.tolerance), float(c.travel),
+                  FORGET_FACTOR * c.travel, SURFACE_JUMP, self.kept, self.anchor, self.body,
+                  self.beyond):
+            self._ranges = None
 
     @property
     def ranges(self) -> np.ndarray:
@@ -246,25 +230,94 @@ class SelfMask:
         scan)."""
         if self._geometry is None:
             return np.zeros(0)
-        body = self.body
-        if np.isfinite(body).any():
-            padded = np.pad(body, EDGE_BEAMS, constant_values=np.nan)
-            n = body.size
-            body = np.fmax.reduce([padded[k:k + n] for k in range(2 * EDGE_BEAMS + 1)])
-        return np.fmax(self.limits, body + self.config.tolerance)
+        if self._ranges is None:          # recomputed only when the learnt body changed
+            body = self.body
+            if np.isfinite(body).any():
+                padded = np.pad(body, EDGE_BEAMS, constant_values=np.nan)
+                n = body.size
+                body = np.fmax.reduce([padded[k:k + n] for k in range(2 * EDGE_BEAMS + 1)])
+            self._ranges = np.fmax(self.limits, body + self.config.tolerance)
+        return self._ranges.copy()
 
 
-def _surface_within(hit: np.ndarray, r: np.ndarray, px: np.ndarray, py: np.ndarray,
-                    reach: float) -> np.ndarray:
-    """Mask: returns whose whole surface lies within ``reach``: the run of returns (beams
-    without a return skipped) in which each lies within SURFACE_JUMP of the previous one."""
-    out = np.zeros(hit.size, bool)
-    idx = np.flatnonzero(hit)
-    if idx.size == 0:
-        return out
-    step = np.hypot(np.diff(px[idx]), np.diff(py[idx]))
-    starts = np.flatnonzero(np.concatenate(([True], step > SURFACE_JUMP)))
-    farthest = np.maximum.reduceat(r[idx], starts)
-    run = np.cumsum(np.isin(np.arange(idx.size), starts)) - 1
-    out[idx] = farthest[run] <= reach
-    return out
+@jit.kernel
+def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel,
+           forget_travel, surface_jump, kept, anchor, body, beyond):
+    """One scan's learning, in place on the per-beam state (``kept``, ``anchor``, ``body``,
+    ``beyond``); returns whether the learnt body changed.
+
+    A return within ``reach`` whose surface lies entirely within reach (its run of returns,
+    beams without a return skipped, each within ``surface_jump`` of the previous one) and
+    that keeps its ``anchor`` range within ``tolerance`` adds the distance a static point
+    there moved in the scanner's frame over this step (the scanner's motion ``x, y, th``) to
+    ``kept``; a return that moved, or lies on the world, starts afresh; a beam without a
+    return keeps its evidence (a body part seen at grazing incidence flickers). At ``travel``
+    the anchor is the body. A learnt beam that sees only the world beyond its body while the
+    world moves past it by ``forget_travel`` is given up."""
+    n = r.size
+    hit = np.zeros(n, np.bool_)
+    moved = np.zeros(n)
+    within = np.zeros(n, np.bool_)
+    cth, sth = math.cos(th), math.sin(th)
+    run_start = -1
+    farthest = 0.0
+    last = -1
+    for k in range(n + 1):
+        if k < n:
+            rk = r[k]
+            if not (math.isfinite(rk) and rk >= range_min and rk < range_max):
+                continue
+            hit[k] = True
+            px, py = rk * cos[k], rk * sin[k]
+            qx, qy = px - x, py - y
+            moved[k] = math.hypot(cth * qx + sth * qy - px, -sth * qx + cth * qy - py)
+            if last >= 0 and math.hypot(px - r[last] * cos[last],
+                                        py - r[last] * sin[last]) <= surface_jump:
+                farthest = max(farthest, rk)
+                last = k
+                continue
+        if run_start >= 0:                       # a run ended: is all of it within reach?
+            for j in range(run_start, last + 1):
+                within[j] = hit[j] and farthest <= reach
+        if k < n:
+            run_start, last, farthest = k, k, r[k]
+    changed = False
+    for k in range(n):
+        rk = r[k]
+        near = hit[k] and rk <= reach and within[k]
+        keeps = near and abs(rk - anchor[k]) <= tolerance
+        if keeps:
+            kept[k] += moved[k]
+        elif hit[k]:
+            kept[k] = 0.0
+        if near and not keeps:
+            anchor[k] = rk
+        elif hit[k] and not near:
+            anchor[k] = np.nan
+        if kept[k] >= travel:
+            learnt = anchor[k] if math.isnan(body[k]) else \
+                (body[k] if math.isnan(anchor[k]) else max(body[k], anchor[k]))
+            if not (learnt == body[k] or (math.isnan(learnt) and math.isnan(body[k]))):
+                body[k] = learnt
+                changed = True
+        if hit[k]:
+            if rk > body[k] + tolerance:
+                beyond[k] += moved[k]
+            elif rk <= body[k] + tolerance:
+                beyond[k] = 0.0
+        if beyond[k] >= forget_travel:
+            if not math.isnan(body[k]):
+                changed = True
+            body[k] = np.nan
+            beyond[k] = 0.0
+    return changed
+
+
+def _exercise_learn() -> None:
+    """The kernel compiled (or loaded) for the argument types of real scans."""
+    _, cos, sin = beam_table(-1.5, 0.075, 41)
+    ranges = np.full(41, 0.5)
+    ranges[0] = np.nan
+    state = [np.zeros(41), np.full(41, np.nan), np.full(41, np.nan), np.zeros(41)]
+    _learn(ranges, cos, sin, 0.01, 10.0, 0.1, 0.0, 0.01, 1.0, 0.05, 2.0, 20.0, SURFACE_JUMP,
+           *state)
