@@ -235,8 +235,8 @@ def run(factories: Callable | Iterable[Callable], args=None, name: str | None = 
         if stop.is_set():            # a second Ctrl-C: leave at once
             os._exit(130)
         stop.set()
-        if not spinning.is_set():    # still starting (imports, compiled kernels): give up now
-            raise KeyboardInterrupt
+        if not spinning.is_set():    # still starting (imports, compiled kernels): leave now,
+            _leave(0)                # not at whatever line of numba or rcl runs at this moment
         for node in nodes:           # a callback in progress (e.g. a configure) gives up
             try:
                 getattr(node, 'request_stop', lambda: None)()

@@ -6,6 +6,8 @@ looping, with odometry at twice that rate) and listens on ``tracks``. Latency is
 from publishing a scan to receiving the ``tracks`` message with its stamp; a scan whose
 tracks never arrive (within 1 s) is dropped. Prints p50 / p99 / max latency and the drops.
 
+``--one-process`` runs the same nodes in one process instead (``laser_tracker_all``, which
+also starts ``active_head``): what the three processes' hops over DDS cost.
 ``--code DIR`` runs the nodes from another checkout of the package (to compare versions).
 """
 from __future__ import annotations
@@ -27,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='a bundled recording (its scans are looped)')
     parser.add_argument('--rate', type=float, default=75.0, help='scans per second (75)')
     parser.add_argument('--seconds', type=float, default=20.0, help='how long to publish')
+    parser.add_argument('--one-process', action='store_true',
+                        help='the nodes in one process (laser_tracker_all) instead of three')
     parser.add_argument('--code', metavar='DIR', help='run the nodes from this checkout')
     parser.add_argument('--domain', type=int, default=87, help='ROS_DOMAIN_ID to use')
 
@@ -50,9 +54,10 @@ def run(args: argparse.Namespace) -> int:
     env = dict(os.environ)
     if args.code:
         env['PYTHONPATH'] = str(Path(args.code).resolve())
+    modules = ('composed',) if args.one_process else NODES
     procs = [subprocess.Popen([sys.executable, '-m', f'laser_tracker.nodes.{n}'], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-             for n in NODES]
+             for n in modules]
     rclpy.init()
     node = rclpy.create_node('bench_graph')
     best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -115,7 +120,8 @@ def run(args: argparse.Namespace) -> int:
                         if k in received and received[k] - t < 1.0]) * 1e3
     drops = len(sent) - latency.size
     print(f'{len(sent)} scans at {args.rate:g} Hz from {bag.name} through '
-          f'{", ".join(NODES)} (separate processes)'
+          f'{", ".join(NODES)} '
+          + ('(one process: laser_tracker_all)' if args.one_process else '(separate processes)')
           + (f' [code: {args.code}]' if args.code else ''))
     if latency.size:
         print(f'latency scan -> tracks: p50 {np.percentile(latency, 50):.1f} ms, '
