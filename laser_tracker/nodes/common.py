@@ -4,8 +4,10 @@ and no-scan messages.
 * :func:`run` starts one or more nodes in one executor and stops them within a second or two
   of Ctrl-C or SIGTERM, every time: rclpy's own signal handling is replaced by a flag that
   the spin loop checks (and a node's ``request_stop()``, if it has one, is called so that a
-  long callback such as a lifecycle configure gives up), cleanup runs under a watchdog, and
-  a start-up configuration error is one line on stderr with exit status 2 (no traceback):
+  long callback such as a lifecycle configure gives up), cleanup runs under a watchdog, a
+  Ctrl-C while the nodes are still being made (imports, loading or compiling the kernels)
+  ends the process at once (nothing runs yet that needs stopping), and a start-up
+  configuration error is one line on stderr with exit status 2 (no traceback):
   the ROS arguments are checked before ``rclpy.init`` (:func:`check_ros_arguments`: parameter
   files, ``-p`` and ``-r`` rules, log levels), and whatever rcl or a node constructor still
   refuses is caught and said in one line.
