@@ -123,10 +123,12 @@ class HypothesisConfig:
                                      'least this (m/s): a flicker in place (a thin chair leg '
                                      'seen in one scan and missed in the next) is not a '
                                      'moving object. 0 = paper.', min=0.0, max=10.0)
-    confirm_min_travel: float = param(0.0, 'A hypothesis started by motion blobs is confirmed '
-                                      'only once it is this far (m) from where it was '
-                                      'created: a moving object goes somewhere; a thin static '
-                                      'object flickering in and out of the scans does not '
+    confirm_min_travel: float = param(0.3, 'A hypothesis started by motion blobs is confirmed '
+                                      'only once it is this far (m, odometry frame) from '
+                                      'where it was created: a moving object goes somewhere, '
+                                      'while static clutter that seems to move (its blob '
+                                      'shifting by a cell as cells flip at its edges, or by a '
+                                      'scan-match error at range) stays within a few cells '
                                       '(people have their own rules). 0 = paper.', min=0.0,
                                       max=100.0)
     merge_distance: float = param(0.3, 'Hypotheses closer than this (m) ...', min=0.0,
