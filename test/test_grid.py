@@ -307,6 +307,24 @@ def test_open_space_and_a_facing_edge_still_free_space():
         assert bounded[cell_of(x, y)] == FREE, (x, y)
 
 
+def test_the_end_of_a_facing_wall_bounds_only_for_a_scanner_that_loses_echoes():
+    """A wall 2 m ahead, facing the scanner, whose returns end 0.5 m to the left: for a
+    scanner that loses echoes on surfaces in range (a dark wall fades with range), the beams
+    past the end may have hit the wall, so its continuation bounds them; for one that
+    returns from every surface, the end is the wall's end (a doorway) and they free space."""
+    n = 181
+    angles = np.linspace(-math.pi / 2, math.pi / 2, n)
+    ranges = np.full(n, np.inf)
+    seen = (angles > -0.46) & (angles < 0.245)
+    ranges[seen] = 2.0 / np.cos(angles[seen])            # the wall x = 2, y -1 .. 0.5
+    past_the_end = cell_of(2.4, 0.8)
+    loses = build_grid(scan_180(ranges), BOUNDED)        # lost_echoes 0: it does
+    assert loses[past_the_end] == UNKNOWN
+    assert loses[cell_of(1.5, 0.6)] == FREE              # in front of the continuation
+    keeps = GridBuilder(dataclasses.replace(BOUNDED, lost_echoes=0.5))
+    assert keeps.build(scan_180(ranges)).grid[past_the_end] == FREE
+
+
 def test_gaps_are_bridged_only_for_a_scanner_that_loses_echoes():
     """A scanner that returns from every surface in range sees through a gap in a wall into
     free space; a scanner that keeps losing echoes between nearby returns (here 6 % of its

@@ -94,9 +94,10 @@ class GridConfig:
         'see: beside a surface seen at grazing incidence (grazing_incidence), up to that '
         'surface\'s continuation (the echoes fade with the incidence); and, for a scanner '
         'that loses echoes on surfaces within its range (lost_echoes), between two returns '
-        'up to the straight line joining them (the echo was lost on something there). In '
-        'open space it frees no_return_free as before. false = up to no_return_free '
-        '(paper).')
+        'up to the straight line joining them (the echo was lost on something there) and '
+        'beside a surface at least 1 m long at any incidence up to its continuation (a dark '
+        'wall fades with range). In open space and beside small objects it frees '
+        'no_return_free as before. false = up to no_return_free (paper).')
     lost_echoes: float = param(
         0.03, 'The chord between two returns bounds the beams without a return between them '
         '(no_return_bounds) once at least this share of the scanner\'s '
@@ -245,8 +246,9 @@ def _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free):
     * with both edges, up to the chord joining them, when ``chords`` (the scanner loses
       echoes on surfaces within its range, :func:`_loses_echoes`: the beam may have hit
       anything beyond its neighbours' returns);
-    * at an edge whose surface is seen at grazing incidence (``grazing_incidence``), up to
-      that surface's continuation: the line through the last ``SURFACE_POINTS`` returns
+    * at an edge whose surface is seen at grazing incidence (``grazing_incidence``), or at
+      any incidence when ``chords`` (a dark surface fades with range too), up to that
+      surface's continuation: the line through the last ``SURFACE_POINTS`` returns
       before the run (the first ones after it), when they lie within ``SURFACE_SPAN`` of the
       edge and ``SURFACE_RMS`` of a line, on a surface at least ``SURFACE_LENGTH`` long.
 
@@ -323,7 +325,8 @@ def _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free):
                 extent = math.hypot(qx[edge] - qx[first[edge]], qy[edge] - qy[first[edge]])
             else:
                 extent = math.hypot(qx[last[edge]] - qx[edge], qy[last[edge]] - qy[edge])
-            if not (abs(cos[e] * nx + sin[e] * ny) <= cos_graze and extent >= SURFACE_LENGTH):
+            if not ((chords or abs(cos[e] * nx + sin[e] * ny) <= cos_graze)
+                    and extent >= SURFACE_LENGTH):
                 continue
             along = dx * nx + dy * ny
             if along != 0.0:
