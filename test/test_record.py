@@ -514,6 +514,47 @@ def test_ctrl_c_during_a_recorded_replay_leaves_nothing(tmp_path):
     assert not rec.exists() and leftovers(tmp_path) == []
 
 
+@pytest.mark.parametrize('signum', ['SIGTERM', 'SIGKILL'])
+def test_a_killed_replay_leaves_no_recording_and_no_recording_process(tmp_path, signum):
+    """The replay killed (SIGTERM, or SIGKILL: no cleanup of its own): the recording process
+    sees the pipe end, removes the partial recording and exits."""
+    import os
+    import signal
+    import sys
+    import time
+
+    rec = tmp_path / 'rec'
+    proc = subprocess.Popen([sys.executable, '-m', 'laser_tracker.tools.cli', 'replay',
+                             'crossing_walkers', '--out', str(tmp_path / 'o'), '--record',
+                             str(rec), '--record-grids', 'every', '--no-progress'],
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 60.0
+    while not any(tmp_path.glob('.rec*')) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None
+    time.sleep(0.5)
+    os.kill(proc.pid, getattr(signal, signum))        # the replay alone, not its group
+    proc.wait(timeout=30)
+
+    def recording_processes():
+        found = []
+        for entry in Path('/proc').iterdir():
+            try:
+                if entry.name.isdigit() and str(rec).encode() in \
+                        (entry / 'cmdline').read_bytes():
+                    found.append(entry.name)
+            except OSError:
+                pass
+        return found
+
+    deadline = time.monotonic() + 10.0
+    while (recording_processes() or leftovers(tmp_path) or rec.exists()) and \
+            time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert recording_processes() == []
+    assert not rec.exists() and leftovers(tmp_path) == []
+
+
 def test_a_failure_in_the_recording_process_is_an_error_not_a_recording(tmp_path,
                                                                        monkeypatch):
     """A bug while building a message (in the recording process) fails the replay with the

@@ -377,8 +377,8 @@ class RecordingProcess:
 
         ctx = multiprocessing.get_context('fork')
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(self.options, child), daemon=True,
-                                 name='laser-tracker recorder')
+        self._proc = ctx.Process(target=_serve, args=(self.options, child, self._conn),
+                                 daemon=True, name='laser-tracker recorder')
         self._proc.start()
         child.close()
         try:
@@ -473,44 +473,62 @@ class StepRecord:
     detection: object
 
 
-def _serve(options: RecordOptions, conn) -> None:
+def _serve(options: RecordOptions, conn, replay_end) -> None:
     """The recording process: a RunRecorder answering :class:`RecordingProcess`. Replies
     ``(kind, call number, value)``; a failed queued call is said once, unasked (call number
-    None), and the calls after it are skipped (their replies are errors)."""
+    None), and the calls after it are skipped (their replies are errors). Whenever it ends
+    without the replay's ``__exit__`` (the replay died: end of the pipe; SIGTERM), the
+    partial recording is removed."""
     import signal
+
+    replay_end.close()        # the replay's end, inherited: else the pipe never ends here
+    signal.signal(signal.SIGINT, signal.SIG_IGN)     # Ctrl-C: the replay decides
+
+    def terminated(signum, frame):
+        raise SystemExit(143)
+
+    signal.signal(signal.SIGTERM, terminated)
+    recorder = RunRecorder(options)
+    entered = False
+    try:
+        entered = _answer_calls(recorder, conn)
+    finally:
+        if entered:                              # not closed by the replay: nothing is left
+            recorder.__exit__(LaserTrackerError, LaserTrackerError('aborted'), None)
+
+
+def _answer_calls(recorder: RunRecorder, conn) -> bool:
+    """:func:`_serve`'s loop; returns whether the recording is still open (the replay is
+    gone without closing it)."""
     import traceback
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    recorder = RunRecorder(options)
     entered = False
     failure = None
     while True:
         try:
             number, name, args = conn.recv()
-        except (EOFError, OSError):            # the replay is gone: leave nothing behind
-            if entered:
-                recorder.__exit__(LaserTrackerError, LaserTrackerError('aborted'), None)
-            return
+        except (EOFError, OSError):            # the replay is gone
+            return entered
         reply = None
         if failure is not None and name != '__exit__':
             reply = ('error', number, failure)
         else:
             try:
+                if name == '__exit__':
+                    entered = False           # closed by this call, whatever it says
                 value = getattr(recorder, name)(*args)
                 if name == 'start':
                     value = recorder.passthrough_topics
                 elif name == '__exit__':
                     value = recorder.summary()        # the recording as written
                 elif name == '__enter__':
-                    value = None
-                entered = name != '__exit__' and (entered or name == '__enter__')
+                    value, entered = None, True
                 reply = ('ok', number, value)
             except LaserTrackerError as exc:
                 reply = ('error', number, (True, str(exc)))
             except Exception:  # noqa: BLE001 - a bug: its traceback, in the replay
                 reply = ('error', number, (False, traceback.format_exc()))
             if reply[0] == 'error':
-                entered = entered and name != '__exit__'
                 if failure is None and number is None:
                     failure = reply[2]
                     number = -1                  # said once, unasked
@@ -520,9 +538,9 @@ def _serve(options: RecordOptions, conn) -> None:
             try:
                 conn.send(reply)
             except OSError:
-                return
+                return entered
         if name == '__exit__':
-            return
+            return False
 
 
 def _stamped(tf_message, ns: int):
