@@ -429,6 +429,17 @@ def leftovers(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name.startswith('.rec'))
 
 
+def _assert_full_disk_leaves_nothing(tmp_path: Path, capsys) -> None:
+    """A replay recording into ``tmp_path / 'rec'`` on a disk that fills up: one error line
+    naming the recording and the cause, exit 2, nothing left."""
+    rec = tmp_path / 'rec'
+    assert run('replay', 'exp3_rotating_static', '--out', tmp_path / 'o', '--record', rec,
+               '--no-progress') == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert 'No space left on device' in err and str(rec) in err
+    assert not rec.exists() and leftovers(tmp_path) == []
+
+
 def test_full_disk_mid_write_leaves_nothing(tmp_path, capsys, monkeypatch):
     written = {'n': 0}
     original = BagWriter.write
@@ -440,12 +451,7 @@ def test_full_disk_mid_write_leaves_nothing(tmp_path, capsys, monkeypatch):
         return original(self, *args, **kwargs)
 
     monkeypatch.setattr(BagWriter, 'write', fill_up)
-    rec = tmp_path / 'rec'
-    assert run('replay', 'exp3_rotating_static', '--out', tmp_path / 'o', '--record', rec,
-               '--no-progress') == 2
-    err = one_error_line(capsys.readouterr().err)
-    assert 'No space left on device' in err and str(rec) in err
-    assert not rec.exists() and leftovers(tmp_path) == []
+    _assert_full_disk_leaves_nothing(tmp_path, capsys)
 
 
 @pytest.mark.parametrize('step', ['closing', 'compacting'])
@@ -464,12 +470,7 @@ def test_full_disk_while_closing_leaves_nothing(tmp_path, capsys, monkeypatch, s
         monkeypatch.setattr(Writer, 'close', full)
     else:
         monkeypatch.setattr(compact_mcap, '_rewrite', full)
-    rec = tmp_path / 'rec'
-    assert run('replay', 'exp3_rotating_static', '--out', tmp_path / 'o', '--record', rec,
-               '--no-progress') == 2
-    err = one_error_line(capsys.readouterr().err)
-    assert 'No space left on device' in err and str(rec) in err
-    assert not rec.exists() and leftovers(tmp_path) == []
+    _assert_full_disk_leaves_nothing(tmp_path, capsys)
 
 
 def test_a_really_full_tmpfs_leaves_nothing(tmp_path, capsys):
@@ -489,12 +490,9 @@ def test_a_really_full_tmpfs_leaves_nothing(tmp_path, capsys):
         subprocess.run(['umount', str(mnt)], capture_output=True)
 
 
-def test_ctrl_c_during_a_recorded_replay_leaves_nothing(tmp_path):
-    """The recording is written by a second process: Ctrl-C (SIGINT to the whole process
-    group, as a terminal sends it) stops both, and neither the recording nor a temporary file
-    is left."""
-    import os
-    import signal
+def _recording_replay(tmp_path: Path, stderr=subprocess.DEVNULL):
+    """A replay of ``crossing_walkers`` recording every grid to ``tmp_path / 'rec'``, in a
+    session of its own, once its recording has started: (process, recording path)."""
     import sys
     import time
 
@@ -502,12 +500,23 @@ def test_ctrl_c_during_a_recorded_replay_leaves_nothing(tmp_path):
     proc = subprocess.Popen([sys.executable, '-m', 'laser_tracker.tools.cli', 'replay',
                              'crossing_walkers', '--out', str(tmp_path / 'o'),
                              '--record', str(rec), '--record-grids', 'every', '--no-progress'],
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=stderr, text=True, start_new_session=True)
     deadline = time.monotonic() + 60.0
     while not any(tmp_path.glob('.rec*')) and time.monotonic() < deadline:
-        time.sleep(0.05)                          # the recording has started
-    assert proc.poll() is None, proc.stderr.read()
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.stderr.read() if proc.stderr else proc.returncode
     time.sleep(0.5)
+    return proc, rec
+
+
+def test_ctrl_c_during_a_recorded_replay_leaves_nothing(tmp_path):
+    """The recording is written by a second process: Ctrl-C (SIGINT to the whole process
+    group, as a terminal sends it) stops both, and neither the recording nor a temporary file
+    is left."""
+    import os
+    import signal
+
+    proc, rec = _recording_replay(tmp_path, stderr=subprocess.PIPE)
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode != 0 and 'Traceback' not in err, err
@@ -520,19 +529,9 @@ def test_a_killed_replay_leaves_no_recording_and_no_recording_process(tmp_path, 
     sees the pipe end, removes the partial recording and exits."""
     import os
     import signal
-    import sys
     import time
 
-    rec = tmp_path / 'rec'
-    proc = subprocess.Popen([sys.executable, '-m', 'laser_tracker.tools.cli', 'replay',
-                             'crossing_walkers', '--out', str(tmp_path / 'o'), '--record',
-                             str(rec), '--record-grids', 'every', '--no-progress'],
-                            stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.monotonic() + 60.0
-    while not any(tmp_path.glob('.rec*')) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert proc.poll() is None
-    time.sleep(0.5)
+    proc, rec = _recording_replay(tmp_path)
     os.kill(proc.pid, getattr(signal, signum))        # the replay alone, not its group
     proc.wait(timeout=30)
 

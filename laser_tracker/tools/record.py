@@ -420,8 +420,10 @@ class RecordingProcess:
     def wants_grids(self, scan_index: int) -> bool:
         return RunRecorder.wants_grids(self, scan_index)
 
-    def scan_message(self, index: int, intensities, scan) -> None:
-        self._cast('scan_message', index, intensities, scan)
+    def scan_message(self, index: int, msg, scan) -> None:
+        """As :meth:`RunRecorder.scan_message`, given the input message ``msg`` (only its
+        intensities cross to the recording process)."""
+        self._cast('scan_message', index, intensities_of(msg), scan)
 
     def passthrough(self, topic: str, receive_ns: int, msg) -> None:
         self._cast('passthrough', topic, receive_ns, msg)
@@ -509,7 +511,6 @@ def _answer_calls(recorder: RunRecorder, conn) -> bool:
             number, name, args = conn.recv()
         except (EOFError, OSError):            # the replay is gone
             return entered
-        reply = None
         if failure is not None and name != '__exit__':
             reply = ('error', number, failure)
         else:
@@ -529,11 +530,9 @@ def _answer_calls(recorder: RunRecorder, conn) -> bool:
             except Exception:  # noqa: BLE001 - a bug: its traceback, in the replay
                 reply = ('error', number, (False, traceback.format_exc()))
             if reply[0] == 'error':
-                if failure is None and number is None:
-                    failure = reply[2]
-                    number = -1                  # said once, unasked
-                else:
-                    failure = failure or reply[2]
+                failure = failure or reply[2]
+                if number is None:               # a queued call: said once, unasked
+                    number = -1
         if number is not None:
             try:
                 conn.send(reply)

@@ -346,8 +346,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                 if want:
                     state['figure'] = scan
                 if recorder is not None:
-                    from laser_tracker.tools.record import intensities_of
-                    recorder.scan_message(scan_index, intensities_of(msg), scan)
+                    recorder.scan_message(scan_index, msg, scan)
                     want = want or recorder.wants_grids(scan_index)
                 process(pipeline.add_scan(scan, arrival, want))
             process(pipeline.flush())
