@@ -30,6 +30,18 @@ beyond it is the world seen past the body, so a person standing next to the robo
 hidden. A learnt range also masks the beams within ``EDGE_BEAMS`` of it (a body part's edge
 shifts by a beam or two). A beam learnt as body that keeps seeing only farther returns while the world moves
 past it by ``10 x travel`` is given up (what stood there was not the body).
+
+**Mixed returns at a nearer edge** (``beam_width``, :func:`mixed_returns`). A laser beam
+has a width (about a centimetre or a few where it leaves the scanner). A beam that passes
+the edge of a nearer surface within that width is partly blocked: the scanner reports one
+range from the mixture of the edge's echo and the weakened echo from behind, often well
+off the surface behind (laser scanners' "mixed pixels" or veil). The number of beams an
+edge blocks partly is the beam's width over the beam spacing at the edge's range, so it is
+largest at the robot's own body: a body edge 0.7 m away blocks half a dozen beams of a
+0.35 deg scanner partly, and their returns form a spur off the wall behind that keeps its
+bearing while the robot moves, which the difference map reads as a mover. Those beams on
+the far side of a range step (``EDGE_JUMP``) are masked like the body: a person standing
+next to the robot is still seen by every other beam.
 """
 from __future__ import annotations
 
@@ -53,6 +65,10 @@ PROVISIONAL_TRAVEL = 0.2
 #: The edge of a body part shifts by a beam or two between scans (vibration, a cable, the
 #: beam's footprint): a learnt body range also masks the beams this close to it.
 EDGE_BEAMS = 3
+#: A range step (m) between neighbouring returns that makes the nearer one an edge for
+#: :func:`mixed_returns`: well above the range noise of these scanners (1-3 cm) and below
+#: the gap between a person and the wall behind them.
+EDGE_JUMP = 0.3
 
 
 @dataclass(frozen=True)
@@ -77,6 +93,12 @@ class SelfMaskConfig:
         '', 'The robot\'s footprint in its base frame, as nav2 writes it: '
         '"[[x1, y1], [x2, y2], [x3, y3], ...]" (m, at least 3 corners); returns inside it '
         'are the body. \'\' = none.')
+    beam_width: float = param(
+        0.03, 'Width (m) of the laser beam where it leaves the scanner. Beams on the far side '
+        'of a nearer surface\'s edge (a range step of 0.3 m or more) within this width of '
+        'it are partly blocked and return a mixed range: they are masked like the body '
+        '(the robot\'s own body, being nearest, blocks the most). 0 = none are (paper).',
+        min=0.0, max=0.2)
 
     def __post_init__(self):
         footprint_polygon(self.footprint)     # a malformed polygon is refused here
@@ -138,6 +160,7 @@ class SelfMask:
         self._geometry = None
         self._ranges = None
         self.limits = np.zeros(0)
+        self.masked_ranges = np.zeros(0)
         jit.compiled('self-mask kernel', _exercise_learn)
 
     # ------------------------------------------------------------------ state
@@ -183,8 +206,17 @@ class SelfMask:
             return scan.ranges <= self.ranges          # NaN: False
 
     def apply(self, scan: Scan) -> tuple[Scan, np.ndarray]:
-        """``scan`` with its body returns as NaN (a copy when any), and the mask."""
+        """``scan`` with its body returns and its mixed returns at nearer edges as NaN (a
+        copy when any), and the mask; ``masked_ranges`` is then the mask as per-beam
+        ranges (returns up to them are masked; NaN: none), what detection applies."""
         masked = self.mask(scan)
+        self.masked_ranges = self.ranges
+        if self.config.beam_width > 0:
+            mixed = mixed_returns(scan, self.config.beam_width)
+            if mixed.any():
+                masked |= mixed
+                self.masked_ranges[mixed] = np.fmax(self.masked_ranges[mixed],
+                                                    scan.ranges[mixed])
         if not masked.any():
             return scan, masked
         ranges = scan.ranges.copy()
@@ -238,6 +270,42 @@ class SelfMask:
                 body = np.fmax.reduce([padded[k:k + n] for k in range(2 * EDGE_BEAMS + 1)])
             self._ranges = np.fmax(self.limits, body + self.config.tolerance)
         return self._ranges.copy()
+
+
+def mixed_returns(scan: Scan, beam_width: float) -> np.ndarray:
+    """Beams of ``scan`` partly blocked by a nearer edge (see the module docstring)."""
+    out = np.zeros(scan.n_beams, np.bool_)
+    _mixed(scan.ranges, max(scan.range_min, 1e-6), float(scan.range_max),
+           abs(float(scan.angle_increment)), float(beam_width), EDGE_JUMP, out)
+    return out
+
+
+@jit.kernel
+def _mixed(r, range_min, range_max, increment, width, jump, out):
+    """Marks in ``out`` the returns beside each range step of at least ``jump`` between
+    neighbouring returns, on its far side: as many beams as the beam's ``width`` spans at
+    the nearer return's range (a mixed return may lie anywhere between the two ranges)."""
+    n = r.size
+    if increment <= 0.0:
+        return
+    for i in range(n - 1):
+        a, b = r[i], r[i + 1]
+        if not (a >= range_min and a < range_max and b >= range_min and b < range_max):
+            continue
+        if abs(a - b) < jump:
+            continue
+        near = min(a, b)
+        span = int(width / (near * increment))
+        if span <= 0:
+            continue
+        if a < b:                                   # the far side runs on after i + 1
+            for k in range(i + 1, min(n, i + 1 + span)):
+                if r[k] >= range_min and r[k] < range_max:
+                    out[k] = True
+        else:                                       # ... back from i
+            for k in range(i, max(-1, i - span), -1):
+                if r[k] >= range_min and r[k] < range_max:
+                    out[k] = True
 
 
 @jit.kernel
@@ -321,3 +389,5 @@ def _exercise_learn() -> None:
     state = [np.zeros(41), np.full(41, np.nan), np.full(41, np.nan), np.zeros(41)]
     _learn(ranges, cos, sin, 0.01, 10.0, 0.1, 0.0, 0.01, 1.0, 0.05, 2.0, 20.0, SURFACE_JUMP,
            *state)
+    ranges[20:] = 5.0
+    _mixed(ranges, 0.01, 10.0, 0.075, 0.03, EDGE_JUMP, np.zeros(41, np.bool_))

@@ -207,7 +207,7 @@ class EgoMotion:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
         received = scan
         scan, _ = self.self_mask.apply(scan)
-        body = self.self_mask.ranges
+        body = self.self_mask.masked_ranges
         est = self.estimator.update(_without(scan, self.self_mask.unlearnt(scan)))
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
