@@ -174,6 +174,13 @@ class HokuyoConfig(ScannerMount):
     receive_delay: float = param(0.07, 'Time from the first beam to the scan reaching the host '
                                  '(s): the rest of the revolution and the USB transfer.',
                                  min=0.0, max=1.0)
+    beam_width: float = param(0.0, 'Width of the beam (m) where it leaves the scanner: a beam '
+                              'that passes the edge of a nearer surface within it returns a '
+                              'mixed range, short of the surface behind by up to '
+                              'mixed_shortfall of the range step (0: none).', min=0.0,
+                              max=0.2)
+    mixed_shortfall: float = param(0.1, 'Largest shortfall of a mixed return, as a fraction '
+                                   'of the range step at the edge.', min=0.0, max=1.0)
 
 
 class Hokuyo:
@@ -206,7 +213,8 @@ class Hokuyo:
         """Readings for the true ranges of one sweep (``inf`` = nothing hit); ``incidence``
         (N,) is each hit's angle from the surface normal (rad), None for head-on.
 
-        Returns ``(ranges, returned)`` as :meth:`Lidar.measure`; draws a fixed number of
+        Returns ``(ranges, returned)`` as :meth:`Lidar.measure` (a mixed return beside a
+        nearer edge is not a return of the surface it was aimed at); draws a fixed number of
         random values per beam.
         """
         c = self.config
@@ -232,6 +240,12 @@ class Hokuyo:
         spurious = (u_spur < c.spurious_probability) & ~dropped
         reach = np.where(in_range, true_ranges, c.range_max)
         r = np.where(in_range, true_ranges, c.range_max) + noise
+        mixed = np.zeros(n, bool)
+        if c.beam_width > 0:
+            shortfall = mixed_shortfall(true_ranges, self.angle_increment, c.beam_width,
+                                        rng.random(n) * c.mixed_shortfall)
+            r = r - shortfall
+            mixed = shortfall > 0
         r = np.where(spurious, 0.1 + u_len * np.maximum(reach - 0.1, 0.0), r)
         r = np.round(r / self.unit) * self.unit
         r = np.clip(r, max(c.range_min, self.unit), c.range_max)
@@ -242,8 +256,29 @@ class Hokuyo:
             r = np.where(no_return & (u_code < c.no_return_nan), np.nan, r)
             r = np.where(no_return & (u_code >= c.no_return_nan)
                          & (u_code < c.no_return_nan + c.no_return_zero), 0.0, r)
-        returned = in_range & ~dropped & ~spurious & ~no_return
+        returned = in_range & ~dropped & ~spurious & ~no_return & ~mixed
         return r, returned
+
+
+def mixed_shortfall(true_ranges: np.ndarray, increment: float, width: float,
+                    fraction: np.ndarray) -> np.ndarray:
+    """Per beam, how much short of its true range a beam partly blocked by a nearer edge
+    reads: ``fraction`` of the range step, for the beams on the far side of each step of
+    0.3 m or more that lie within ``width`` of the edge at its range (0 elsewhere)."""
+    n = true_ranges.size
+    out = np.zeros(n)
+    finite = np.isfinite(true_ranges)
+    for i in np.flatnonzero(finite[:-1] & finite[1:]):
+        a, b = true_ranges[i], true_ranges[i + 1]
+        if abs(a - b) < 0.3:
+            continue
+        near = min(a, b)
+        span = int(width / (near * increment))
+        far = range(i + 1, min(n, i + 1 + span)) if a < b else range(i, max(-1, i - span), -1)
+        for k in far:
+            if finite[k] and true_ranges[k] - near >= 0.3:
+                out[k] = max(out[k], fraction[k] * (true_ranges[k] - near))
+    return out
 
 
 def make_scanner(config):
