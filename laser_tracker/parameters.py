@@ -120,6 +120,8 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.duplicate_radius': 0.0,  # every hypothesis confirms after 4 samples
         'hypotheses.confirm_min_travel': 0.0,
         'hypotheses.person_blob_gate': 0.0,  # every track takes blobs within the gate
+        'hypotheses.new_when_ungated': False,  # Eq. 2 alone says which blob is new
+        'hypotheses.confirm_time': 0.0,    # 4 samples, however short a time they span
     },
 }
 

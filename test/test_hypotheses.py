@@ -484,8 +484,8 @@ def test_new_parameters_reach_every_role_and_the_memory_stays():
     tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
     walk(tr, 3)
     (tid,) = tr.hyp.track_id
-    assert not tr.reconfigure(HypothesisConfig(confirm_samples=2, creation_window=0.0),
-                              KalmanConfig())
+    assert not tr.reconfigure(HypothesisConfig(confirm_samples=2, creation_window=0.0,
+                                               confirm_time=0.0), KalmanConfig())
     assert all(role.config.confirm_samples == 2 for role in tr.roles)
     r = tr.update(frame(3 * DT, (1.0 + 3 * DT, 0.0), (4.0, 4.0)))
     assert r.hypotheses.track_id[r.newly_confirmed].tolist() == [tid]     # 3 samples >= 2

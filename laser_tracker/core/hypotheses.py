@@ -103,7 +103,7 @@ class HypothesisConfig:
         'where the paper\'s coasting costs more than its weight at once. 0 = paper.',
         min=0.0, max=5.0)
     new_when_ungated: bool = param(
-        False, 'A blob that no hypothesis gates (none predicted within gate) is new, whatever '
+        True, 'A blob that no hypothesis gates (none predicted within gate) is new, whatever '
         'the hypotheses farther away: Eq. 2 lowers its weight for every hypothesis within 5 m '
         'and refuses a new mover in a crowd. false = Eq. 2 alone (paper).')
     coast_rate: float = param(200.0, 'Weight lost per second without a supporting blob '
@@ -165,7 +165,7 @@ class HypothesisConfig:
         'ignored: the robot\'s own body, before the self-mask has learnt it. 0 = off '
         '(paper).', min=0.0, max=10.0)
     confirm_time: float = param(
-        0.0, 'A hypothesis is confirmed only once it has lived this long (s) since it was '
+        0.6, 'A hypothesis is confirmed only once it has lived this long (s) since it was '
         'created, whatever the scan rate: the paper\'s 4 samples span 0.8 s at its 5 Hz but '
         '0.4 s at 10 Hz. 0 = samples alone (paper).', min=0.0, max=10.0)
     person_gate: float = param(
