@@ -302,6 +302,9 @@ class OdometryBuffer:
         self._config = config
         mount = (config.mount_x, config.mount_y, config.mount_yaw)
         self._mount = np.array(mount, dtype=float) if any(mount) else None
+        # a jump: a step faster than 1.5 times the platform's limits, plus 0.1 m or rad
+        self._jump_xy = 1.5 * config.max_translation_speed
+        self._jump_theta = 1.5 * config.max_rotation_speed
 
     def clear(self) -> None:
         self._t: list[float] = []
@@ -316,38 +319,35 @@ class OdometryBuffer:
     def newest(self) -> float | None:
         return self._t[-1] if self._t else None
 
-    def _jumped(self, t0, p0, t1, p1) -> bool:
-        c = self.config
-        dt = abs(t1 - t0)
-        dd = math.hypot(p1[0] - p0[0], p1[1] - p0[1])
-        da = abs(wrap_scalar(p1[2] - p0[2]))
-        return (dd > 1.5 * c.max_translation_speed * dt + 0.1
-                or da > 1.5 * c.max_rotation_speed * dt + 0.1)
-
     def add(self, stamp: float, pose) -> tuple[str, str] | None:
+        """Store one sample (plain floats and lists: it runs for every odometry message)."""
         try:
             t = float(stamp)
-            p = (float(pose[0]), float(pose[1]), float(pose[2]))
+            x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
         except (TypeError, ValueError, IndexError):
             return 'bad odometry', 'odometry sample is not a time stamp and (x, y, theta)'
-        if not (math.isfinite(t) and all(math.isfinite(v) for v in p)):
+        if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(y)
+                and math.isfinite(th)):
             return 'bad odometry', 'non-finite odometry sample (ignored)'
-        p = (p[0], p[1], wrap_scalar(p[2]))
-        if not self._t or t > self._t[-1]:
+        p = (x, y, wrap_scalar(th))
+        ts = self._t
+        if not ts or t > ts[-1]:
             reason = None
-            if self._t and self._jumped(self._t[-1], self._p[-1], t, p):
-                self._segment += 1
+            if ts:
                 q = self._p[-1]
-                reason = 'odometry jumped', (
-                    f'odometry jumped {math.hypot(p[0] - q[0], p[1] - q[1]):.2f} m / '
-                    f'{math.degrees(abs(wrap_scalar(p[2] - q[2]))):.1f} deg '
-                    f'in {t - self._t[-1]:.3f} s '
-                    f'(faster than the platform): new segment')
-            self._t.append(t)
+                dt = t - ts[-1]
+                dd = math.hypot(x - q[0], y - q[1])
+                da = abs(wrap_scalar(p[2] - q[2]))
+                if dd > self._jump_xy * dt + 0.1 or da > self._jump_theta * dt + 0.1:
+                    self._segment += 1
+                    reason = 'odometry jumped', (
+                        f'odometry jumped {dd:.2f} m / {math.degrees(da):.1f} deg '
+                        f'in {dt:.3f} s (faster than the platform): new segment')
+            ts.append(t)
             self._p.append(p)
             self._seg.append(self._segment)
-            if len(self._t) > 200000:  # hard memory bound, whatever the query pattern
-                del self._t[:100000], self._p[:100000], self._seg[:100000]
+            if len(ts) > 200000:  # hard memory bound, whatever the query pattern
+                del ts[:100000], self._p[:100000], self._seg[:100000]
             return reason
         if t == self._t[-1] or t in self._t[max(0, len(self._t) - 8):]:
             return 'odometry duplicate', 'duplicate odometry stamp (ignored)'

@@ -134,12 +134,13 @@ class EgoMotion:
     # ---------------------------------------------------------------- stream
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list:
         """Feed one odometry sample (platform pose in the odometry frame)."""
-        pose = np.asarray(pose, dtype=float).reshape(-1)
-        if pose.size != 3 or not (np.isfinite(pose).all() and math.isfinite(stamp)):
+        xyt = _planar(pose)
+        if xyt is None or not (math.isfinite(xyt[0]) and math.isfinite(xyt[1])
+                               and math.isfinite(xyt[2]) and math.isfinite(stamp)):
             self.events.note('odometry skipped', f'not a finite planar pose: {stamp!r}, '
-                             f'{pose.tolist()!r}')
+                             f'{list(xyt) if xyt else np.asarray(pose).tolist()!r}')
             return []
-        self.estimator.add_odometry(float(stamp), pose)
+        self.estimator.add_odometry(float(stamp), xyt)
         if arrival is None:
             return []
         return self._estimate_all(self.wait.add_odometry(arrival, float(stamp)))
@@ -614,6 +615,19 @@ def _without(scan: Scan, masked: np.ndarray) -> Scan:
     ranges = scan.ranges.copy()
     ranges[masked] = np.nan
     return dataclasses.replace(scan, ranges=ranges)
+
+
+def _planar(pose) -> tuple[float, float, float] | None:
+    """``(x, y, theta)`` as floats from any three numbers (a sequence, an array of any
+    shape), None when ``pose`` is not three numbers."""
+    if isinstance(pose, np.ndarray) and pose.ndim != 1:
+        pose = pose.reshape(-1)
+    try:
+        x, y, theta = pose
+        return float(x), float(y), float(theta)
+    except (TypeError, ValueError):
+        flat = np.asarray(pose, dtype=float).reshape(-1)
+        return tuple(flat.tolist()) if flat.size == 3 else None
 
 
 def _generic(reason: str) -> str:
