@@ -763,7 +763,8 @@ class ScanMatcher:
             return f'residual {res.rms:.3f} m > {c.max_rms:g} m'
         if not res.converged:
             return 'did not converge'
-        if not np.all(np.isfinite(res.pose)):
+        x, y, theta = res.pose.tolist()
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
             return 'non-finite result'
         return ''
 
@@ -805,8 +806,7 @@ def fuse(res: icp.IcpResult, previous, predicted, prior,
     ``previous`` pose. Along degenerate directions the prediction is kept. The algebra is
     one kernel call (:func:`_fuse`)."""
     c = config
-    deg = res.eigenvalues < c.degeneracy_threshold
-    n_deg = int(np.count_nonzero(deg))
+    n_deg = sum(v < c.degeneracy_threshold for v in res.eigenvalues.tolist())
     if n_deg == 3:
         return 'degenerate in every direction'
     settings = np.array([c.icp_model_sigma ** 2, c.prior_max_ratio, c.prior_gate,
@@ -816,6 +816,7 @@ def fuse(res: icp.IcpResult, previous, predicted, prior,
         np.asarray(predicted, dtype=float), np.asarray(prior, dtype=float), settings)
     if n_deg:
         # along degenerate directions (scaled coordinates z = delta / sv): the prediction
+        deg = res.eigenvalues < c.degeneracy_threshold
         sv = np.array([1.0, 1.0, 1.0 / res.scale])
         z = between(predicted, pose) / sv
         u = res.eigenvectors[:, ~deg]

@@ -212,7 +212,8 @@ class EgoMotion:
         est = self.estimator.update(_without(scan, self.self_mask.unlearnt(scan)))
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
-        if not est.ok or not np.isfinite(pose).all():
+        x, y, theta = pose.tolist()
+        if not (est.ok and math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
             self.skipped = 'no pose: ' + _generic(est.reason)
             self.events.note('no pose', _generic(est.reason))
             return None
