@@ -205,6 +205,13 @@ class SelfMask:
             kept = np.abs(scan.ranges - self.anchor) <= self.config.tolerance
         return kept & (self.kept >= PROVISIONAL_TRAVEL) & np.isnan(self.body)
 
+    def left_out(self, scan: Scan) -> np.ndarray:
+        """Beams of ``scan`` the scan match leaves out: :meth:`mask` or :meth:`unlearnt`
+        (one kernel call, :func:`_left_out`)."""
+        self._fit(scan)
+        return _left_out(scan.ranges, self._body_ranges(), self.anchor, self.kept, self.body,
+                         float(self.config.tolerance), PROVISIONAL_TRAVEL)
+
     def learn(self, scan: Scan, motion) -> None:
         """Learn from ``scan`` (as received) and the scanner's motion since the previous
         scan (its pose in the previous scanner frame): one kernel call, :func:`_learn`."""
@@ -230,14 +237,31 @@ class SelfMask:
         scan)."""
         if self._geometry is None:
             return np.zeros(0)
-        if self._ranges is None:          # recomputed only when the learnt body changed
+        return self._body_ranges().copy()
+
+    def _body_ranges(self) -> np.ndarray:
+        """:attr:`ranges` itself, recomputed only when the learnt body changed."""
+        if self._ranges is None:
             body = self.body
             if np.isfinite(body).any():
                 padded = np.pad(body, EDGE_BEAMS, constant_values=np.nan)
                 n = body.size
                 body = np.fmax.reduce([padded[k:k + n] for k in range(2 * EDGE_BEAMS + 1)])
             self._ranges = np.fmax(self.limits, body + self.config.tolerance)
-        return self._ranges.copy()
+        return self._ranges
+
+
+@jit.kernel
+def _left_out(r, body_ranges, anchor, kept, body, tolerance, provisional):
+    """Per beam: ``r <= body_ranges`` (the body; NaN: no), or it kept its ``anchor``
+    within ``tolerance`` over ``provisional`` metres of world travel and is not learnt
+    (``body`` NaN): :meth:`SelfMask.mask` or :meth:`SelfMask.unlearnt`."""
+    out = np.zeros(r.size, np.bool_)
+    for k in range(r.size):
+        out[k] = r[k] <= body_ranges[k] or (abs(r[k] - anchor[k]) <= tolerance
+                                             and kept[k] >= provisional
+                                             and math.isnan(body[k]))
+    return out
 
 
 @jit.kernel
@@ -321,3 +345,4 @@ def _exercise_learn() -> None:
     state = [np.zeros(41), np.full(41, np.nan), np.full(41, np.nan), np.zeros(41)]
     _learn(ranges, cos, sin, 0.01, 10.0, 0.1, 0.0, 0.01, 1.0, 0.05, 2.0, 20.0, SURFACE_JUMP,
            *state)
+    _left_out(ranges, np.full(41, 0.3), state[1], state[0], state[2], 0.05, PROVISIONAL_TRAVEL)

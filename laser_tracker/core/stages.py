@@ -206,10 +206,9 @@ class EgoMotion:
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
-        received = scan
-        scan, _ = self.self_mask.apply(scan)
+        left_out = self.self_mask.left_out(scan)        # the body, learnt or probable
         body = self.self_mask.ranges
-        est = self.estimator.update(_without(scan, self.self_mask.unlearnt(scan)))
+        est = self.estimator.update(_without(scan, left_out))
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
         x, y, theta = pose.tolist()
@@ -219,9 +218,9 @@ class EgoMotion:
             return None
         self.rules.accept(scan.stamp)
         if est.odometry_motion is not None:      # the wheels' word, independent of the scan
-            self.self_mask.learn(received, est.odometry_motion)
+            self.self_mask.learn(scan, est.odometry_motion)
         elif est.source in MEASURED_MOTION:      # not a guess (constant velocity, first scan)
-            self.self_mask.learn(received, est.motion)
+            self.self_mask.learn(scan, est.motion)
         quality = pose_quality(est)
         if self._restart_pending:
             quality = PoseQuality(quality.variance, quality.unmatched, True)
