@@ -622,12 +622,14 @@ def _planar(pose) -> tuple[float, float, float] | None:
     shape), None when ``pose`` is not three numbers."""
     if isinstance(pose, np.ndarray) and pose.ndim != 1:
         pose = pose.reshape(-1)
-    try:
-        x, y, theta = pose
-        return float(x), float(y), float(theta)
-    except (TypeError, ValueError):
-        flat = np.asarray(pose, dtype=float).reshape(-1)
-        return tuple(flat.tolist()) if flat.size == 3 else None
+    if isinstance(pose, (tuple, list, np.ndarray)):
+        try:
+            x, y, theta = pose
+            return float(x), float(y), float(theta)
+        except (TypeError, ValueError):
+            pass
+    flat = np.asarray(pose, dtype=float).reshape(-1)
+    return tuple(flat.tolist()) if flat.size == 3 else None
 
 
 def _generic(reason: str) -> str:
