@@ -1,6 +1,7 @@
 """Ego-motion: the scanner's motion between scans from odometry plus ICP scan matching.
 
-No ROS; the scan matching is a compiled kernel (:mod:`laser_tracker.core.icp`). Usage, one
+No ROS; the scan matching is a compiled kernel (:mod:`laser_tracker.core.icp`), and so are
+the fusion's algebra and the adaptive prior's update (one call each per scan). Usage, one
 estimator per scan stream::
 
     est = EgoMotionEstimator(EgoMotionConfig())
