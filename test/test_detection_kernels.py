@@ -10,8 +10,8 @@ import pytest
 from numba.core.registry import CPUDispatcher
 
 from laser_tracker.core import blobs as blob_kernels
-from laser_tracker.core import (difference, grid, icp, jit, person_detector, segmentation,
-                               self_mask)
+from laser_tracker.core import (difference, egomotion, grid, icp, jit, person_detector,
+                               segmentation, self_mask)
 from laser_tracker.core.blobs import BlobConfig
 from laser_tracker.core.difference import DifferenceConfig, changed_with_history
 from laser_tracker.core.grid import (FREE, OCCUPIED, GridBuilder, GridConfig, GridHistory,
@@ -200,7 +200,8 @@ def test_bad_scans_and_a_beam_count_that_changes_pass_detection(paper):
 def test_no_scan_compiles_after_the_start():
     """Every kernel a scan calls was compiled (or loaded from the cache) when the stage was
     made: the first scans run at full speed."""
-    modules = (grid, difference, blob_kernels, segmentation, person_detector, icp, self_mask)
+    modules = (grid, difference, blob_kernels, segmentation, person_detector, icp, self_mask,
+               egomotion)
     Pipeline()
 
     def signatures():

@@ -780,3 +780,59 @@ def test_standing_scanner_without_odometry_does_not_drift():
     assert EgoMotionEstimator(every_scan).config.map_min_translation == 0.0
     drift_all, _ = final_drift(every_scan)
     assert drift_all > 2 * drift
+
+
+# ------------------------------------------------------------------- fusion kernel
+
+
+def _fusion_as_numpy(h, sum_w, icp_pose, previous, predicted, prior, sigma2, ratio, gate):
+    """The fusion of a fully constrained match as numpy and Python computed it before it
+    became a kernel (the reference for bit-for-bit equality)."""
+    info = h / (max(sum_w, 1e-12) * sigma2)
+    d = between(icp_pose, predicted)
+    lam = np.minimum(prior, ratio * info.diagonal())
+    # d^T (info^-1 + diag(lam)^-1)^-1 d: info^-1 by cofactors, then Cramer's rule
+    (a, b, c), (_, e, f), (_, _, i) = info.tolist()
+    ca, cb, cc = e * i - f * f, c * f - b * i, b * f - c * e
+    det = a * ca + b * cb + c * cc
+    s = [[ca / det, cb / det, cc / det],
+         [cb / det, (a * i - c * c) / det, (b * c - a * f) / det],
+         [cc / det, (b * c - a * f) / det, (a * e - b * b) / det]]
+    for k in range(3):
+        s[k][k] += 1.0 / float(lam[k])
+    (p, q, r), (u, t, w), (v, y, x) = s
+    b0, b1, b2 = d.tolist()
+    det = p * (t * x - w * y) - q * (u * x - w * v) + r * (u * y - t * v)
+    sol = ((b0 * (t * x - w * y) - q * (b1 * x - w * b2) + r * (b1 * y - t * b2)) / det,
+           (p * (b1 * x - w * b2) - b0 * (u * x - w * v) + r * (u * b2 - b1 * v)) / det,
+           (p * (t * b2 - b1 * y) - q * (u * b2 - b1 * v) + b0 * (u * y - t * v)) / det)
+    m2 = sol[0] * d[0] + sol[1] * d[1] + sol[2] * d[2]
+    if m2 > gate ** 2:
+        lam = lam * (gate ** 2 / m2) ** 2
+    pose = compose(icp_pose, np.linalg.solve(info + np.diag(lam), lam * d))
+    cov = np.linalg.inv(info + np.diag(lam))
+    return pose, between(previous, pose), info, lam, 0.5 * (cov + cov.T)
+
+
+def test_the_fusion_kernel_computes_as_numpy_bit_for_bit():
+    """Bounded and gated prior (the gate's square is libm's pow, as Python's ``**``, which
+    is not always ``x * x``), LAPACK's solve and inverse: the numbers of the numpy code."""
+    from laser_tracker.core import egomotion
+
+    rng = np.random.default_rng(12)
+    gated = 0
+    for _ in range(300):
+        m = rng.normal(size=(3, 3))
+        h = 50.0 * (m @ m.T) + np.diag(rng.uniform(1.0, 20.0, 3))
+        icp_pose, previous = rng.normal(0.0, 0.3, (2, 3))
+        predicted = icp_pose + rng.normal(0.0, 0.05, 3) * rng.choice([0.1, 1.0, 10.0])
+        prior = 10.0 ** rng.uniform(1.0, 5.0, 3)
+        sum_w = float(rng.uniform(10.0, 200.0))
+        settings = np.array([1e-4, 10.0, 5.0, 25.0, 2.0])
+        got = egomotion._fuse(icp_pose, h, sum_w, 0, previous, predicted, prior, settings)
+        want = _fusion_as_numpy(h, sum_w, icp_pose, previous, predicted, prior, 1e-4, 10.0,
+                                5.0)
+        gated += not np.array_equal(got[3], np.minimum(prior, 10.0 * got[2].diagonal()))
+        for a, b in zip(got, want):
+            assert np.array_equal(a, b)
+    assert 10 < gated < 290                    # both branches of the gate were taken

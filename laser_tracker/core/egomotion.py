@@ -1,6 +1,7 @@
 """Ego-motion: the scanner's motion between scans from odometry plus ICP scan matching.
 
-No ROS; the scan matching is a compiled kernel (:mod:`laser_tracker.core.icp`). Usage, one
+No ROS; the scan matching is a compiled kernel (:mod:`laser_tracker.core.icp`), and so are
+the fusion's algebra and the adaptive prior's update (one call each per scan). Usage, one
 estimator per scan stream::
 
     est = EgoMotionEstimator(EgoMotionConfig())
@@ -80,7 +81,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.config import param
-from laser_tracker.core import icp
+from laser_tracker.core import icp, jit
 from laser_tracker.core.geometry import between, compose, wrap_scalar
 from laser_tracker.core.scan import Scan, beam_table
 
@@ -302,6 +303,9 @@ class OdometryBuffer:
         self._config = config
         mount = (config.mount_x, config.mount_y, config.mount_yaw)
         self._mount = np.array(mount, dtype=float) if any(mount) else None
+        # a jump: a step faster than 1.5 times the platform's limits, plus 0.1 m or rad
+        self._jump_xy = 1.5 * config.max_translation_speed
+        self._jump_theta = 1.5 * config.max_rotation_speed
 
     def clear(self) -> None:
         self._t: list[float] = []
@@ -316,38 +320,35 @@ class OdometryBuffer:
     def newest(self) -> float | None:
         return self._t[-1] if self._t else None
 
-    def _jumped(self, t0, p0, t1, p1) -> bool:
-        c = self.config
-        dt = abs(t1 - t0)
-        dd = math.hypot(p1[0] - p0[0], p1[1] - p0[1])
-        da = abs(wrap_scalar(p1[2] - p0[2]))
-        return (dd > 1.5 * c.max_translation_speed * dt + 0.1
-                or da > 1.5 * c.max_rotation_speed * dt + 0.1)
-
     def add(self, stamp: float, pose) -> tuple[str, str] | None:
+        """Store one sample (plain floats and lists: it runs for every odometry message)."""
         try:
             t = float(stamp)
-            p = (float(pose[0]), float(pose[1]), float(pose[2]))
+            x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
         except (TypeError, ValueError, IndexError):
             return 'bad odometry', 'odometry sample is not a time stamp and (x, y, theta)'
-        if not (math.isfinite(t) and all(math.isfinite(v) for v in p)):
+        if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(y)
+                and math.isfinite(th)):
             return 'bad odometry', 'non-finite odometry sample (ignored)'
-        p = (p[0], p[1], wrap_scalar(p[2]))
-        if not self._t or t > self._t[-1]:
+        p = (x, y, wrap_scalar(th))
+        ts = self._t
+        if not ts or t > ts[-1]:
             reason = None
-            if self._t and self._jumped(self._t[-1], self._p[-1], t, p):
-                self._segment += 1
+            if ts:
                 q = self._p[-1]
-                reason = 'odometry jumped', (
-                    f'odometry jumped {math.hypot(p[0] - q[0], p[1] - q[1]):.2f} m / '
-                    f'{math.degrees(abs(wrap_scalar(p[2] - q[2]))):.1f} deg '
-                    f'in {t - self._t[-1]:.3f} s '
-                    f'(faster than the platform): new segment')
-            self._t.append(t)
+                dt = t - ts[-1]
+                dd = math.hypot(x - q[0], y - q[1])
+                da = abs(wrap_scalar(p[2] - q[2]))
+                if dd > self._jump_xy * dt + 0.1 or da > self._jump_theta * dt + 0.1:
+                    self._segment += 1
+                    reason = 'odometry jumped', (
+                        f'odometry jumped {dd:.2f} m / {math.degrees(da):.1f} deg '
+                        f'in {dt:.3f} s (faster than the platform): new segment')
+            ts.append(t)
             self._p.append(p)
             self._seg.append(self._segment)
-            if len(self._t) > 200000:  # hard memory bound, whatever the query pattern
-                del self._t[:100000], self._p[:100000], self._seg[:100000]
+            if len(ts) > 200000:  # hard memory bound, whatever the query pattern
+                del ts[:100000], self._p[:100000], self._seg[:100000]
             return reason
         if t == self._t[-1] or t in self._t[max(0, len(self._t) - 8):]:
             return 'odometry duplicate', 'duplicate odometry stamp (ignored)'
@@ -435,7 +436,8 @@ class AdaptiveNoise:
     regularised towards the fixed model ``c0`` with the weight of ``weight`` samples, and
     kept non-negative; a sample beyond ``clip`` predicted sigmas is clipped there (a false
     match must not blow the estimate up; a real change passes in a few steps since each
-    clipped sample still raises the estimate). Plain floats: it runs on every scan.
+    clipped sample still raises the estimate). One kernel call per update
+    (:func:`_update_noise`); ``coef`` is kept as plain floats for the per-scan prediction.
     """
 
     def __init__(self, cx0, ct0, memory: int, weight: float, clip: float):
@@ -444,16 +446,23 @@ class AdaptiveNoise:
         self.forget = 1.0 - 1.0 / max(float(memory), 1.0)
         self.weight = float(weight)
         self.clip2 = float(clip) ** 2
-        self._gram = [[0.0] * 3 for _ in range(3)]
-        self._rhs = ([0.0] * 3, [0.0] * 3)
-        self._f2 = [0.0] * 3
-        self.count = 0.0
+        # the running sums: Gram matrix of f, right-hand sides (x, theta), sum of f^2, count
+        self._gram = np.zeros((3, 3))
+        self._rhs = np.zeros((2, 3))
+        self._f2 = np.zeros(3)
+        self._count = np.zeros(1)
+        self._c0 = np.array(self.c0)
+        self._coef = self._c0.copy()
+        self._settings = np.array([self.forget, self.weight, self.clip2])
+        jit.compiled('ego-motion kernels (fusion, adaptive prior)', _exercise_kernels)
+
+    @property
+    def count(self) -> float:
+        """Effective number of matches learnt from (forgetting included)."""
+        return float(self._count[0])
 
     def variance(self, motion) -> tuple[float, float]:
         """``(var_xy, var_theta)`` of a prediction ``motion`` (x, y, theta)."""
-        return self._variance(motion)
-
-    def _variance(self, motion) -> tuple[float, float]:
         d2 = float(motion[0] * motion[0] + motion[1] * motion[1])
         a2 = float(motion[2] * motion[2])
         cx, ct = self.coef
@@ -468,80 +477,126 @@ class AdaptiveNoise:
     def update(self, motion, error, icp_variance) -> None:
         """One disagreement ``error`` (x, y, theta) of the prediction ``motion`` with an ICP
         motion of variance ``icp_variance`` (x, y, theta)."""
-        f = (1.0, float(motion[0] * motion[0] + motion[1] * motion[1]),
-             float(motion[2] * motion[2]))
-        vxy, vth = self._variance(motion)
-        ix = 0.5 * float(icp_variance[0] + icp_variance[1])
-        it = float(icp_variance[2])
-        ex2 = min(0.5 * float(error[0] * error[0] + error[1] * error[1]),
-                  self.clip2 * (vxy + ix)) - ix
-        et2 = min(float(error[2] * error[2]), self.clip2 * (vth + it)) - it
-        g = self.forget
-        _, d2, a2 = f
-        gram, (rx, rt), f2 = self._gram, self._rhs, self._f2
-        r0, r1, r2 = gram
-        r0[0] = g * r0[0] + 1.0
-        r0[1] = r1[0] = g * r0[1] + d2
-        r0[2] = r2[0] = g * r0[2] + a2
-        r1[1] = g * r1[1] + d2 * d2
-        r1[2] = r2[1] = g * r1[2] + d2 * a2
-        r2[2] = g * r2[2] + a2 * a2
-        rx[0], rx[1], rx[2] = g * rx[0] + ex2, g * rx[1] + d2 * ex2, g * rx[2] + a2 * ex2
-        rt[0], rt[1], rt[2] = g * rt[0] + et2, g * rt[1] + d2 * et2, g * rt[2] + a2 * et2
-        f2[0], f2[1], f2[2] = g * f2[0] + 1.0, g * f2[1] + d2 * d2, g * f2[2] + a2 * a2
-        self.count = g * self.count + 1.0
-        self._solve()
-
-    def _solve(self) -> None:
-        n = max(self.count, 1e-12)
-        pen = [self.weight * v / n for v in self._f2]
-        top = max(pen) + 1e-300
-        pen = [p + 1e-9 * top for p in pen]
-        self.coef = tuple(_nonnegative_ridge(self._gram, rhs, pen, c0)
-                          for rhs, c0 in zip(self._rhs, self.c0))
+        _update_noise(float(motion[0]), float(motion[1]), float(motion[2]),
+                      float(error[0]), float(error[1]), float(error[2]),
+                      float(icp_variance[0]), float(icp_variance[1]), float(icp_variance[2]),
+                      self._settings, self._gram, self._rhs, self._f2, self._count, self._c0,
+                      self._coef)
+        cx, ct = self._coef.tolist()
+        self.coef = (tuple(cx), tuple(ct))
 
 
-def _nonnegative_ridge(gram, rhs, pen, c0) -> tuple[float, float, float]:
-    """``argmin |G c - r|`` ridge-regularised towards ``c0`` (weights ``pen``), c >= 0: the
-    normal equations on the free coefficients, dropping negative ones (3 unknowns)."""
-    a = [[gram[0][0] + pen[0], gram[0][1], gram[0][2]],
-         [gram[1][0], gram[1][1] + pen[1], gram[1][2]],
-         [gram[2][0], gram[2][1], gram[2][2] + pen[2]]]
-    b = [rhs[0] + pen[0] * c0[0], rhs[1] + pen[1] * c0[1], rhs[2] + pen[2] * c0[2]]
-    free = [0, 1, 2]
-    while free:
-        if len(free) == 3:
-            sol = _solve_small(a, b)
-        else:
-            sol = _solve_small([[a[i][j] for j in free] for i in free], [b[i] for i in free])
-        if sol is None:
-            return tuple(c0)
-        if sol[0] >= 0.0 and all(v >= 0.0 for v in sol):
-            out = [0.0, 0.0, 0.0]
-            for i, v in zip(free, sol):
-                out[i] = v
-            return tuple(out)
-        free = [i for i, v in zip(free, sol) if v > 0.0]
-    return (0.0, 0.0, 0.0)
+@jit.kernel
+def _update_noise(m0, m1, m2, e0, e1, e2, iv0, iv1, iv2, settings, gram, rhs, f2, count,
+                  c0, coef):
+    """:meth:`AdaptiveNoise.update` in place on its sums and ``coef``: the sample of the
+    prediction ``m`` (disagreement ``e``, ICP variance ``iv``) added with forgetting, and the
+    coefficients solved again."""
+    forget, weight, clip2 = settings[0], settings[1], settings[2]
+    d2 = m0 * m0 + m1 * m1
+    a2 = m2 * m2
+    vxy = _at_least(coef[0, 0] + coef[0, 1] * d2 + coef[0, 2] * a2, 1e-10)
+    vth = _at_least(coef[1, 0] + coef[1, 1] * d2 + coef[1, 2] * a2, 1e-12)
+    ix = 0.5 * (iv0 + iv1)
+    ex2 = _at_most(0.5 * (e0 * e0 + e1 * e1), clip2 * (vxy + ix)) - ix
+    et2 = _at_most(e2 * e2, clip2 * (vth + iv2)) - iv2
+    g = forget
+    f = (1.0, d2, a2)
+    for i in range(3):             # (f[0] = 1: its products are exactly the other factor)
+        for j in range(i, 3):
+            gram[i, j] = g * gram[i, j] + f[i] * f[j]
+            gram[j, i] = gram[i, j]
+        rhs[0, i] = g * rhs[0, i] + f[i] * ex2
+        rhs[1, i] = g * rhs[1, i] + f[i] * et2
+        f2[i] = g * f2[i] + f[i] * f[i]
+    count[0] = g * count[0] + 1.0
+    # the ridge weights: the fixed model counts as ``weight`` samples of each f^2
+    n = _at_least(count[0], 1e-12)
+    pen = np.empty(3)
+    for i in range(3):
+        pen[i] = weight * f2[i] / n
+    top = _at_least(_at_least(pen[0], pen[1]), pen[2]) + 1e-300
+    for i in range(3):
+        pen[i] = pen[i] + 1e-9 * top
+    for k in range(2):
+        _nonnegative_ridge(gram, rhs[k], pen, c0[k], coef[k])
 
 
-def _solve_small(a, b):
-    """Solve a 1x1, 2x2 or 3x3 linear system by Cramer's rule (None when singular)."""
-    n = len(b)
+@jit.inline
+def _at_least(value, bound):
+    """Python's ``max(value, bound)``: ``value`` unless ``bound`` is larger (NaN stays)."""
+    return bound if bound > value else value
+
+
+@jit.inline
+def _at_most(value, bound):
+    """Python's ``min(value, bound)``: ``value`` unless ``bound`` is smaller (NaN stays)."""
+    return bound if bound < value else value
+
+
+@jit.inline
+def _nonnegative_ridge(gram, rhs, pen, c0, out):
+    """``argmin |G c - r|`` ridge-regularised towards ``c0`` (weights ``pen``), c >= 0, into
+    ``out``: the normal equations on the free coefficients, dropping negative ones."""
+    a = gram.copy()
+    b = np.empty(3)
+    for i in range(3):
+        a[i, i] = gram[i, i] + pen[i]
+        b[i] = rhs[i] + pen[i] * c0[i]
+    free = np.arange(3)
+    n_free = 3
+    sol = np.empty(3)
+    while n_free:
+        if not _solve_small(a, b, free, n_free, sol):
+            out[:] = c0
+            return
+        if np.all(sol[:n_free] >= 0.0):
+            out[:] = 0.0
+            for k in range(n_free):
+                out[free[k]] = sol[k]
+            return
+        kept = 0
+        for k in range(n_free):
+            if sol[k] > 0.0:
+                free[kept] = free[k]
+                kept += 1
+        n_free = kept
+    out[:] = 0.0
+
+
+@jit.inline
+def _solve_small(a, b, rows, n, out):
+    """Solve the system of ``a`` and ``b`` restricted to ``rows[:n]`` (n = 1, 2 or 3) by
+    Cramer's rule into ``out[:n]``; False when singular."""
     if n == 1:
-        return [b[0] / a[0][0]] if a[0][0] > 0.0 else None
+        i = rows[0]
+        if not a[i, i] > 0.0:
+            return False
+        out[0] = b[i] / a[i, i]
+        return True
     if n == 2:
-        det = a[0][0] * a[1][1] - a[0][1] * a[1][0]
+        i, j = rows[0], rows[1]
+        det = a[i, i] * a[j, j] - a[i, j] * a[j, i]
         if abs(det) < 1e-300:
-            return None
-        return [(b[0] * a[1][1] - a[0][1] * b[1]) / det, (a[0][0] * b[1] - b[0] * a[1][0]) / det]
-    (p, q, r), (s, t, u), (v, w, x) = a
+            return False
+        out[0] = (b[i] * a[j, j] - a[i, j] * b[j]) / det
+        out[1] = (a[i, i] * b[j] - b[i] * a[j, i]) / det
+        return True
+    return _cramer3(a[0, 0], a[0, 1], a[0, 2], a[1, 0], a[1, 1], a[1, 2], a[2, 0], a[2, 1],
+                    a[2, 2], b[0], b[1], b[2], out)
+
+
+@jit.inline
+def _cramer3(p, q, r, s, t, u, v, w, x, b0, b1, b2, out):
+    """The 3x3 system ``[[p, q, r], [s, t, u], [v, w, x]] y = b`` by Cramer's rule into
+    ``out``; False when singular."""
     det = p * (t * x - u * w) - q * (s * x - u * v) + r * (s * w - t * v)
     if abs(det) < 1e-300:
-        return None
-    return [(b[0] * (t * x - u * w) - q * (b[1] * x - u * b[2]) + r * (b[1] * w - t * b[2])) / det,
-            (p * (b[1] * x - u * b[2]) - b[0] * (s * x - u * v) + r * (s * b[2] - b[1] * v)) / det,
-            (p * (t * b[2] - b[1] * w) - q * (s * b[2] - b[1] * v) + b[0] * (s * w - t * v)) / det]
+        return False
+    out[0] = (b0 * (t * x - u * w) - q * (b1 * x - u * b2) + r * (b1 * w - t * b2)) / det
+    out[1] = (p * (b1 * x - u * b2) - b0 * (s * x - u * v) + r * (s * b2 - b1 * v)) / det
+    out[2] = (p * (t * b2 - b1 * w) - q * (s * b2 - b1 * v) + b0 * (s * w - t * v)) / det
+    return True
 
 
 # ------------------------------------------------------------------------ prediction
@@ -709,7 +764,8 @@ class ScanMatcher:
             return f'residual {res.rms:.3f} m > {c.max_rms:g} m'
         if not res.converged:
             return 'did not converge'
-        if not np.all(np.isfinite(res.pose)):
+        x, y, theta = res.pose.tolist()
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
             return 'non-finite result'
         return ''
 
@@ -741,37 +797,28 @@ class Fused:
     information: np.ndarray         # ICP's information (none along degenerate directions)
     prior: np.ndarray               # the prediction's information used (bounded, gated)
     degenerate: int                 # directions that took the prediction
+    covariance: np.ndarray          # of the fused motion: (information + prior)^-1
 
 
 def fuse(res: icp.IcpResult, previous, predicted, prior,
          config: EgoMotionConfig) -> Fused | str:
     """The ICP pose fused with the ``predicted`` pose of ``prior`` information (diagonal:
     odometry or constant velocity), or why it cannot be; the motion is from the
-    ``previous`` pose. Along degenerate directions the prediction is kept."""
+    ``previous`` pose. Along degenerate directions the prediction is kept. The algebra is
+    one kernel call (:func:`_fuse`)."""
     c = config
-    sv = np.array([1.0, 1.0, 1.0 / res.scale])
-    evals = res.eigenvalues
-    deg = evals < c.degeneracy_threshold
-    n_deg = int(np.count_nonzero(deg))
+    n_deg = sum(v < c.degeneracy_threshold for v in res.eigenvalues.tolist())
     if n_deg == 3:
         return 'degenerate in every direction'
-    # information of the ICP pose: H / (sum w * model_sigma^2), scanner-frame perturbation
-    info = res.hessian / (max(res.sum_weights, 1e-12) * c.icp_model_sigma ** 2)
-    pose = res.pose
-    d = between(pose, predicted)
-    lam = prior
-    if not n_deg:
-        if c.prior_max_ratio > 0.0:
-            lam = np.minimum(lam, c.prior_max_ratio * info.diagonal())
-        if c.prior_gate > 0.0:
-            # a converged, well-overlapping match far outside the prediction's noise: the
-            # prediction is what failed (a wheel slip): it stops counting
-            m2 = _mahalanobis2(info, lam, d)
-            if m2 > c.prior_gate ** 2:
-                lam = lam * (c.prior_gate ** 2 / m2) ** 2
-    pose = compose(pose, np.linalg.solve(info + np.diag(lam), lam * d))
+    settings = np.array([c.icp_model_sigma ** 2, c.prior_max_ratio, c.prior_gate,
+                         c.prior_gate ** 2, 2.0])
+    pose, motion, info, lam, cov = _fuse(
+        res.pose, res.hessian, res.sum_weights, n_deg, np.asarray(previous, dtype=float),
+        np.asarray(predicted, dtype=float), np.asarray(prior, dtype=float), settings)
     if n_deg:
         # along degenerate directions (scaled coordinates z = delta / sv): the prediction
+        deg = res.eigenvalues < c.degeneracy_threshold
+        sv = np.array([1.0, 1.0, 1.0 / res.scale])
         z = between(predicted, pose) / sv
         u = res.eigenvectors[:, ~deg]
         pose = compose(predicted, sv * (u @ (u.T @ z)))
@@ -780,7 +827,8 @@ def fuse(res: icp.IcpResult, previous, predicted, prior,
         proj = np.eye(3) - v @ v.T
         s_inv = np.diag(1.0 / sv)
         info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
-    return Fused(pose, between(previous, pose), info, lam, n_deg)
+        motion, cov = between(previous, pose), _covariance(info, lam)
+    return Fused(pose, motion, info, lam, n_deg, cov)
 
 
 def implausible(motion, predicted, pose, odometry, dt: float, config: EgoMotionConfig) -> str:
@@ -809,29 +857,119 @@ def _inverse_diagonal(m):
     return (ca / det, cd / det, cf / det)
 
 
-def _mahalanobis2(info, lam_diag, d) -> float:
-    """``d^T (info^-1 + diag(lam_diag)^-1)^-1 d`` for a symmetric 3x3 ``info`` (plain floats:
-    it runs on every scan); inf when ``info`` is singular."""
-    (a, b, c), (_, e, f), (_, _, i) = info.tolist()
+# ------------------------------------------------------------------ the fusion's kernels
+#
+# The arithmetic of the numpy formulation they replaced, operation for operation (results
+# equal bit for bit): Python's ``x ** 2`` is libm's pow, not always ``x * x``, so the gate's
+# square is taken with a run-time exponent (``settings[4]`` = 2), which the compiler keeps a
+# pow call; numpy's 3x3 solve and inverse are LAPACK's dgesv, as numba's np.linalg.solve.
+
+
+@jit.kernel
+def _fuse(icp_pose, hessian, sum_weights, n_deg, previous, predicted, prior, settings):
+    """:func:`fuse`'s algebra: ``(pose, motion, information, prior used, covariance)``.
+    ICP's information ``H / (sum w * model_sigma^2)``; with no degenerate direction the
+    prior's information bounded by ``prior_max_ratio`` times ICP's and gated
+    (``prior_gate``); the fused pose one information-weighted step from the ICP pose
+    towards the prediction. With degenerate directions (``n_deg`` > 0) the motion and the
+    covariance are left to the caller (NaN), which projects them out first."""
+    sigma2, max_ratio, gate, gate2, power = (settings[0], settings[1], settings[2],
+                                             settings[3], settings[4])
+    info = hessian / (_at_least(sum_weights, 1e-12) * sigma2)
+    d = _between(icp_pose, predicted)
+    lam = prior.copy()
+    if n_deg == 0:
+        if max_ratio > 0.0:
+            for k in range(3):
+                bound = max_ratio * info[k, k]
+                if bound < lam[k] or math.isnan(bound):      # np.minimum
+                    lam[k] = bound
+        if gate > 0.0:
+            # a converged, well-overlapping match far outside the prediction's noise: the
+            # prediction is what failed (a wheel slip): it stops counting
+            m2 = _mahalanobis2(info, lam, d)
+            if m2 > gate2:
+                lam = lam * (gate2 / m2) ** power
+    pose = _compose(icp_pose, np.linalg.solve(info + np.diag(lam), lam * d))
+    if n_deg:
+        return pose, np.full(3, np.nan), info, lam, np.full((3, 3), np.nan)
+    return pose, _between(previous, pose), info, lam, _covariance(info, lam)
+
+
+@jit.kernel
+def _covariance(info, lam):
+    """``(info + diag(lam))^-1``, symmetrised (the pseudo-inverse when singular)."""
+    a = info + np.diag(lam)
+    try:
+        cov = np.linalg.solve(a, np.eye(3))
+    except Exception:  # noqa: BLE001 - numba catches no narrower class
+        cov = np.linalg.pinv(a)
+    return 0.5 * (cov + cov.T)
+
+
+@jit.inline
+def _mahalanobis2(info, lam, d):
+    """``d^T (info^-1 + diag(lam)^-1)^-1 d`` for a symmetric 3x3 ``info``; inf when
+    ``info`` is singular."""
+    a, b, c = info[0, 0], info[0, 1], info[0, 2]
+    e, f, i = info[1, 1], info[1, 2], info[2, 2]
     ca, cb, cc = e * i - f * f, c * f - b * i, b * f - c * e
     det = a * ca + b * cb + c * cc
     if not det > 0.0:
         return math.inf
-    s = [[ca / det, cb / det, cc / det],
-         [cb / det, (a * i - c * c) / det, (b * c - a * f) / det],
-         [cc / det, (b * c - a * f) / det, (a * e - b * b) / det]]
-    for k in range(3):
-        s[k][k] += 1.0 / float(lam_diag[k])
-    sol = _solve_small(s, [float(v) for v in d])
-    return math.inf if sol is None else float(sol[0] * d[0] + sol[1] * d[1] + sol[2] * d[2])
+    s01, s12 = cb / det, (b * c - a * f) / det
+    s02 = cc / det
+    s00 = ca / det + 1.0 / lam[0]
+    s11 = (a * i - c * c) / det + 1.0 / lam[1]
+    s22 = (a * e - b * b) / det + 1.0 / lam[2]
+    sol = np.empty(3)
+    if not _cramer3(s00, s01, s02, s01, s11, s12, s02, s12, s22, d[0], d[1], d[2], sol):
+        return math.inf
+    return sol[0] * d[0] + sol[1] * d[1] + sol[2] * d[2]
 
 
-def _inverse(info) -> np.ndarray:
-    try:
-        cov = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        cov = np.linalg.pinv(info)
-    return 0.5 * (cov + cov.T)
+@jit.inline
+def _wrap(theta):
+    """:func:`geometry.wrap_scalar`."""
+    return (theta + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@jit.inline
+def _compose(a, b):
+    """:func:`geometry.compose`."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    out = np.empty(3)
+    out[0] = a[0] + c * b[0] - s * b[1]
+    out[1] = a[1] + s * b[0] + c * b[1]
+    out[2] = _wrap(a[2] + b[2])
+    return out
+
+
+@jit.inline
+def _between(a, b):
+    """:func:`geometry.between`."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    out = np.empty(3)
+    out[0] = c * dx + s * dy
+    out[1] = -s * dx + c * dy
+    out[2] = _wrap(b[2] - a[2])
+    return out
+
+
+def _exercise_kernels() -> None:
+    """The fusion's and the adaptive prior's kernels compiled (or loaded) for the argument
+    types of real scans."""
+    h = np.diag([4.0, 4.0, 1.0])
+    z3 = np.zeros(3)
+    one = np.ones(3)
+    settings = np.array([1e-4, 10.0, 5.0, 25.0, 2.0])
+    for n_deg in (0, 1):
+        _fuse(z3, h, 1.0, n_deg, z3, np.array([0.1, 0.0, 0.01]), one, settings)
+    _covariance(h, one)
+    _update_noise(0.1, 0.0, 0.01, 0.01, 0.0, 0.001, 1e-5, 1e-5, 1e-7,
+                  np.array([0.98, 5.0, 9.0]), np.zeros((3, 3)), np.zeros((2, 3)), z3.copy(),
+                  np.zeros(1), np.full((2, 3), 1e-4), np.full((2, 3), 1e-4))
 
 
 # -------------------------------------------------------------------------- estimator
@@ -929,9 +1067,8 @@ class EgoMotionEstimator:
             source = SOURCE_ICP
             reason = 'icp' if pred.odometry is not None else f'icp without odometry ({no_inc})'
         self._lost = 0
-        return self._estimate(t, fused.motion,
-                              _inverse(fused.information + np.diag(fused.prior)), source,
-                              reason, pred, res, n_pts)
+        return self._estimate(t, fused.motion, fused.covariance, source, reason, pred, res,
+                              n_pts)
 
     def _coasting(self, t, res, pred, why, no_inc, n_pts) -> tuple[EgoMotionEstimate, bool]:
         """No match: the platform coasts on its prediction; the pose chain goes on. After

@@ -237,6 +237,18 @@ class SelfMask:
             kept = np.abs(scan.ranges - self.anchor) <= self.config.tolerance
         return kept & (self.kept >= PROVISIONAL_TRAVEL) & np.isnan(self.body)
 
+    def left_out(self, scan: Scan) -> np.ndarray:
+        """Beams of ``scan`` the scan match leaves out: :meth:`mask`, :meth:`unlearnt` or
+        a mixed return (one kernel call, :func:`_left_out`); ``masked_ranges`` is then the
+        mask as detection applies it (the body and the mixed returns)."""
+        self._fit(scan)
+        self.masked_ranges = self._body_ranges().copy()
+        return _left_out(scan.ranges, self._body_ranges(), self.anchor, self.kept, self.body,
+                         float(self.config.tolerance), PROVISIONAL_TRAVEL,
+                         max(scan.range_min, 1e-6), float(scan.range_max),
+                         abs(float(scan.angle_increment)), float(self.config.beam_width),
+                         EDGE_JUMP, self.masked_ranges)
+
     def learn(self, scan: Scan, motion) -> None:
         """Learn from ``scan`` (as received) and the scanner's motion since the previous
         scan (its pose in the previous scanner frame): one kernel call, :func:`_learn`."""
@@ -262,14 +274,41 @@ class SelfMask:
         scan)."""
         if self._geometry is None:
             return np.zeros(0)
-        if self._ranges is None:          # recomputed only when the learnt body changed
+        return self._body_ranges().copy()
+
+    def _body_ranges(self) -> np.ndarray:
+        """:attr:`ranges` itself, recomputed only when the learnt body changed."""
+        if self._ranges is None:
             body = self.body
             if np.isfinite(body).any():
                 padded = np.pad(body, EDGE_BEAMS, constant_values=np.nan)
                 n = body.size
                 body = np.fmax.reduce([padded[k:k + n] for k in range(2 * EDGE_BEAMS + 1)])
             self._ranges = np.fmax(self.limits, body + self.config.tolerance)
-        return self._ranges.copy()
+        return self._ranges
+
+
+@jit.kernel
+def _left_out(r, body_ranges, anchor, kept, body, tolerance, provisional, range_min,
+              range_max, increment, width, jump, masked_ranges):
+    """Per beam: ``r <= body_ranges`` (the body; NaN: no), or it kept its ``anchor``
+    within ``tolerance`` over ``provisional`` metres of world travel and is not learnt
+    (``body`` NaN): :meth:`SelfMask.mask` or :meth:`SelfMask.unlearnt`; or a mixed return
+    (:func:`_mark_mixed`), whose range then joins ``masked_ranges``."""
+    out = np.zeros(r.size, np.bool_)
+    for k in range(r.size):
+        out[k] = r[k] <= body_ranges[k] or (abs(r[k] - anchor[k]) <= tolerance
+                                             and kept[k] >= provisional
+                                             and math.isnan(body[k]))
+    if width > 0.0:
+        mixed = np.zeros(r.size, np.bool_)
+        _mark_mixed(r, range_min, range_max, increment, width, jump, mixed)
+        for k in range(r.size):
+            if mixed[k]:
+                out[k] = True
+                if not r[k] <= masked_ranges[k]:
+                    masked_ranges[k] = r[k]
+    return out
 
 
 def mixed_returns(scan: Scan, beam_width: float) -> np.ndarray:
@@ -282,6 +321,12 @@ def mixed_returns(scan: Scan, beam_width: float) -> np.ndarray:
 
 @jit.kernel
 def _mixed(r, range_min, range_max, increment, width, jump, out):
+    """:func:`_mark_mixed` as a kernel of its own (:func:`mixed_returns`)."""
+    _mark_mixed(r, range_min, range_max, increment, width, jump, out)
+
+
+@jit.inline
+def _mark_mixed(r, range_min, range_max, increment, width, jump, out):
     """Marks in ``out`` the returns beside each range step of at least ``jump`` between
     neighbouring returns, on its far side: as many beams as the beam's ``width`` spans at
     the nearer return's range (a mixed return may lie anywhere between the two ranges)."""
@@ -389,5 +434,7 @@ def _exercise_learn() -> None:
     state = [np.zeros(41), np.full(41, np.nan), np.full(41, np.nan), np.zeros(41)]
     _learn(ranges, cos, sin, 0.01, 10.0, 0.1, 0.0, 0.01, 1.0, 0.05, 2.0, 20.0, SURFACE_JUMP,
            *state)
+    _left_out(ranges, np.full(41, 0.3), state[1], state[0], state[2], 0.05, PROVISIONAL_TRAVEL,
+              0.01, 10.0, 0.075, 0.03, EDGE_JUMP, np.full(41, np.nan))
     ranges[20:] = 5.0
     _mixed(ranges, 0.01, 10.0, 0.075, 0.03, EDGE_JUMP, np.zeros(41, np.bool_))

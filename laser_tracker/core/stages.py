@@ -134,12 +134,13 @@ class EgoMotion:
     # ---------------------------------------------------------------- stream
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list:
         """Feed one odometry sample (platform pose in the odometry frame)."""
-        pose = np.asarray(pose, dtype=float).reshape(-1)
-        if pose.size != 3 or not (np.isfinite(pose).all() and math.isfinite(stamp)):
+        xyt = _planar(pose)
+        if xyt is None or not (math.isfinite(xyt[0]) and math.isfinite(xyt[1])
+                               and math.isfinite(xyt[2]) and math.isfinite(stamp)):
             self.events.note('odometry skipped', f'not a finite planar pose: {stamp!r}, '
-                             f'{pose.tolist()!r}')
+                             f'{list(xyt) if xyt else np.asarray(pose).tolist()!r}')
             return []
-        self.estimator.add_odometry(float(stamp), pose)
+        self.estimator.add_odometry(float(stamp), xyt)
         if arrival is None:
             return []
         return self._estimate_all(self.wait.add_odometry(arrival, float(stamp)))
@@ -205,21 +206,21 @@ class EgoMotion:
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
-        received = scan
-        scan, _ = self.self_mask.apply(scan)
+        left_out = self.self_mask.left_out(scan)   # the body, learnt or probable; mixed returns
         body = self.self_mask.masked_ranges
-        est = self.estimator.update(_without(scan, self.self_mask.unlearnt(scan)))
+        est = self.estimator.update(_without(scan, left_out))
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
-        if not est.ok or not np.isfinite(pose).all():
+        x, y, theta = pose.tolist()
+        if not (est.ok and math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
             self.skipped = 'no pose: ' + _generic(est.reason)
             self.events.note('no pose', _generic(est.reason))
             return None
         self.rules.accept(scan.stamp)
         if est.odometry_motion is not None:      # the wheels' word, independent of the scan
-            self.self_mask.learn(received, est.odometry_motion)
+            self.self_mask.learn(scan, est.odometry_motion)
         elif est.source in MEASURED_MOTION:      # not a guess (constant velocity, first scan)
-            self.self_mask.learn(received, est.motion)
+            self.self_mask.learn(scan, est.motion)
         quality = pose_quality(est)
         if self._restart_pending:
             quality = PoseQuality(quality.variance, quality.unmatched, True)
@@ -614,6 +615,21 @@ def _without(scan: Scan, masked: np.ndarray) -> Scan:
     ranges = scan.ranges.copy()
     ranges[masked] = np.nan
     return dataclasses.replace(scan, ranges=ranges)
+
+
+def _planar(pose) -> tuple[float, float, float] | None:
+    """``(x, y, theta)`` as floats from any three numbers (a sequence, an array of any
+    shape), None when ``pose`` is not three numbers."""
+    if isinstance(pose, np.ndarray) and pose.ndim != 1:
+        pose = pose.reshape(-1)
+    if isinstance(pose, (tuple, list, np.ndarray)):
+        try:
+            x, y, theta = pose
+            return float(x), float(y), float(theta)
+        except (TypeError, ValueError):
+            pass
+    flat = np.asarray(pose, dtype=float).reshape(-1)
+    return tuple(flat.tolist()) if flat.size == 3 else None
 
 
 def _generic(reason: str) -> str:
