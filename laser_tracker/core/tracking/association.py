@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from laser_tracker.core import jit
 from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.frame import Frame
 from laser_tracker.core.tracking.role import Role
@@ -112,15 +113,15 @@ class PersonAssociation(Role):
 
 @dataclass
 class BlobMatch:
-    """Motion blobs against the hypotheses: ``dist`` (k, b) from the predictions, the
-    Eq. 2 ``weight`` (b,) of each blob, the ``new`` ones (b,), the supporting pairs
-    (hypothesis ``hi``, blob ``bi``) and the hypotheses no measurement supports."""
+    """Motion blobs against the hypotheses: the Eq. 2 ``weight`` (b,) of each blob, the
+    ``new`` ones (b,), the supporting pairs (hypothesis ``hi``, blob ``bi``, at distance
+    ``d`` from the prediction) and the hypotheses no measurement supports."""
 
-    dist: np.ndarray
     weight: np.ndarray
     new: np.ndarray
     hi: np.ndarray
     bi: np.ndarray
+    d: np.ndarray
     unsupported: np.ndarray
 
 
@@ -135,26 +136,11 @@ class BlobAssociation(Role):
     def associate(self, hyp: Hypotheses, pred: np.ndarray, frame: Frame,
                   people: PersonMatch) -> BlobMatch:
         c = self.config
-        k, b = len(hyp), frame.xy.shape[0]
-        by_person = people.supported
-        if not (k and b):                       # no hypothesis lowers a blob's weight
-            weight, pairs = np.full(b, 100.0), np.zeros(0, np.intp)
-            return BlobMatch(np.zeros((k, b)), weight, weight > c.new_blob_threshold, pairs,
-                             pairs, ~by_person)
-        dist = pairwise_distances(pred, frame.xy)
-        # Equation 2 (a stopped object held by the scans does not make the motion near it
-        # old).
-        weight = _percent(100.0 - np.maximum(c.blob_radius - dist[~hyp.stopped] /
-                                             c.distance_unit, 0.0).sum(axis=0))
-        new = weight > c.new_blob_threshold
-        if c.new_when_ungated:
-            new |= ~(dist <= c.gate).any(axis=0)
-        gate = (dist <= c.gate) & ~by_person[:, None]
-        if c.person_blob_gate > 0:
-            person_kind = hyp.is_person(c.person_kind_samples)
-            gate[person_kind] &= dist[person_kind] <= c.person_blob_gate
-        hi, bi = np.nonzero(gate)
-        return BlobMatch(dist, weight, new, hi, bi, ~gate.any(axis=1) & ~by_person)
+        person_kind = hyp.is_person(c.person_kind_samples)
+        return BlobMatch(*_eq2_and_gates(pred, frame.xy, hyp.stopped, people.supported,
+                                         person_kind, c.blob_radius, c.distance_unit,
+                                         c.new_blob_threshold, c.new_when_ungated, c.gate,
+                                         c.person_blob_gate))
 
     def support(self, hyp: Hypotheses, frame: Frame, match: BlobMatch) -> Hypotheses:
         """One copy of hypothesis ``hi[j]`` per supporting blob ``bi[j]``: Eq. 3, Kalman,
@@ -164,7 +150,7 @@ class BlobAssociation(Role):
             return Hypotheses.empty(hyp.dim)
         c, t = self.config, frame.stamp
         out = hyp.take(hi)
-        d = match.dist[hi, bi]
+        d = match.d
         state, P, position = self.filter.correct(out.state, out.P, out.t_state, frame.xy[bi],
                                                  t)
         out.state, out.P, out.position, out.t_state = state, P, position, t
@@ -174,3 +160,59 @@ class BlobAssociation(Role):
         out.supported, out.stopped = True, False
         self.identity.split(out, hi, d)
         return out
+
+
+@jit.kernel
+def _eq2_and_gates(pred, xy, stopped, by_person, person_kind, blob_radius, unit,
+                   new_threshold, new_when_ungated, gate, person_blob_gate):
+    """The blobs ``xy`` (b, 2) against the predictions ``pred`` (k, 2): Equation 2 (a
+    stopped object held by the scans does not make the motion near it old), the new blobs,
+    the gated pairs (row-major, with their distances; none for a hypothesis a person
+    detection supports, a person's only within ``person_blob_gate`` when above 0) and the
+    hypotheses no measurement supports. The sums add as numpy adds a column."""
+    k, b = pred.shape[0], xy.shape[0]
+    dist = np.empty((k, b))
+    for i in range(k):
+        for j in range(b):
+            dx, dy = pred[i, 0] - xy[j, 0], pred[i, 1] - xy[j, 1]
+            dist[i, j] = np.sqrt(dx * dx + dy * dy)
+    weight, new = np.empty(b), np.empty(b, np.bool_)
+    terms = np.empty(k)
+    for j in range(b):
+        n = 0
+        total = 0.0
+        for i in range(k):
+            if not stopped[i]:
+                term = max(blob_radius - dist[i, j] / unit, 0.0)
+                terms[n] = term
+                total = total + term if n else term
+                n += 1
+        if b == 1:                  # numpy adds a single column pairwise
+            total = jit.pairwise_sum(terms, 0, n)
+        weight[j] = min(max(100.0 - total, 0.0), 100.0)
+        new[j] = weight[j] > new_threshold
+        if new_when_ungated and k:
+            near = False
+            for i in range(k):
+                near |= dist[i, j] <= gate
+            new[j] |= not near
+    gated = np.zeros((k, b), np.bool_)
+    unsupported = np.empty(k, np.bool_)
+    pairs = 0
+    for i in range(k):
+        reach = gate
+        if person_blob_gate > 0 and person_kind[i]:
+            reach = min(gate, person_blob_gate)
+        for j in range(b):
+            gated[i, j] = not by_person[i] and dist[i, j] <= gate and dist[i, j] <= reach
+            pairs += gated[i, j]
+        unsupported[i] = not by_person[i]
+    hi, bi, d = np.empty(pairs, np.intp), np.empty(pairs, np.intp), np.empty(pairs)
+    n = 0
+    for i in range(k):
+        for j in range(b):
+            if gated[i, j]:
+                hi[n], bi[n], d[n] = i, j, dist[i, j]
+                unsupported[i] = False
+                n += 1
+    return weight, new, hi, bi, d, unsupported
