@@ -67,21 +67,11 @@ class PersonAssociation(Role):
         motion blobs (a person starting a hypothesis takes its legs' blobs only if seen
         walking in: else the blobs may be a mover beside clutter and start their own)."""
         c = self.config
-        k, persons = len(hyp), frame.persons
-        person_of = np.full(k, -1, np.intp)
-        fresh = np.zeros(persons.shape[0], bool)
-        if persons.shape[0]:
-            dp = pairwise_distances(pred, persons)
-            if k:
-                near = dp.argmin(axis=1)
-                person_of = np.where(dp[np.arange(k), near] <= c.person_gate, near, -1)
-            claimed = (dp <= c.person_gate).any(axis=0) if k else fresh.copy()
-            fresh = ~claimed & (frame.confidence >= c.person_create_confidence)
-            used = fresh & frame.free
-            used[person_of[person_of >= 0]] = True
-            if frame.xy.shape[0] and c.person_radius > 0 and used.any():
-                frame.without_blobs(pairwise_distances(frame.xy, persons[used]).min(axis=1)
-                                    <= c.person_radius)
+        person_of, fresh, legs = _claims(pred, frame.persons, frame.confidence, frame.free,
+                                         frame.xy, c.person_gate, c.person_create_confidence,
+                                         c.person_radius)
+        if legs is not None:
+            frame.without_blobs(legs)
         return PersonMatch(person_of, person_of >= 0, fresh)
 
     def support(self, hyp: Hypotheses, pred: np.ndarray, frame: Frame,
@@ -160,6 +150,52 @@ class BlobAssociation(Role):
         out.supported, out.stopped = True, False
         self.identity.split(out, hi, d)
         return out
+
+
+@jit.kernel
+def _claims(pred, persons, confidence, free, xy, gate, create_confidence, radius):
+    """Person detections ``persons`` (p, 2) against the predictions ``pred`` (k, 2): the
+    nearest detection of each hypothesis within ``gate`` (-1: none), the detections no
+    prediction is within ``gate`` of that are confident enough to start one (fresh), and
+    the blobs ``xy`` within ``radius`` of the detections used (claimed, or fresh and
+    walked in), None when none is used or ``radius`` is 0."""
+    k, p, b = pred.shape[0], persons.shape[0], xy.shape[0]
+    person_of = np.full(k, -1, np.intp)
+    claimed = np.zeros(p, np.bool_)
+    for i in range(k):
+        near = -1
+        best = np.inf
+        for j in range(p):
+            dx, dy = pred[i, 0] - persons[j, 0], pred[i, 1] - persons[j, 1]
+            d = np.sqrt(dx * dx + dy * dy)
+            claimed[j] |= d <= gate
+            if near < 0 or (best == best and (d < best or d != d)):   # argmin: first NaN
+                near, best = j, d
+        if near >= 0 and best <= gate:
+            person_of[i] = near
+    fresh = np.empty(p, np.bool_)
+    used = np.empty(p, np.bool_)
+    for j in range(p):
+        fresh[j] = not claimed[j] and confidence[j] >= create_confidence
+        used[j] = fresh[j] and free[j]
+    for i in range(k):
+        if person_of[i] >= 0:
+            used[person_of[i]] = True
+    if not (b and radius > 0 and used.any()):
+        return person_of, fresh, None
+    legs = np.zeros(b, np.bool_)
+    for m in range(b):
+        least = np.inf
+        for j in range(p):
+            if used[j]:
+                dx, dy = xy[m, 0] - persons[j, 0], xy[m, 1] - persons[j, 1]
+                d = np.sqrt(dx * dx + dy * dy)
+                if d != d or least != least:
+                    least = np.nan
+                elif d < least:
+                    least = d
+        legs[m] = least <= radius
+    return person_of, fresh, legs
 
 
 @jit.kernel

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from laser_tracker.core import jit
 from laser_tracker.core.detections import Detections, People, Segments
-from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.role import Role
 
 log = logging.getLogger('laser_tracker.core.hypotheses')   # the tracker's one log, all roles
@@ -175,16 +175,34 @@ class Measurements(Role):
         local = frame.scanner.to_scanner(xy)
         before, pose = self.ride_local, self.previous_pose
         self.ride_local = local
-        out = np.zeros(xy.shape[0], bool)
         if not xy.shape[0] or before.shape[0] == 0 or pose is None:
-            return out
-        near = (local ** 2).sum(axis=1) <= self.config.ride_along_reach ** 2
-        if not near.any():
-            return out
-        in_scanner = pairwise_distances(local[near], before)
-        in_world = pairwise_distances(xy[near], Scanner.from_scanner(before, pose))
-        out[near] = ((in_world >= RIDE_MIN_TRAVEL) & (in_scanner < 0.5 * in_world)).any(axis=1)
-        return out
+            return np.zeros(xy.shape[0], bool)
+        x, y, th = (float(v) for v in pose) if pose.size == 3 else (math.nan,) * 3
+        return _kept_place(xy, local, before, x, y, math.cos(th), math.sin(th),
+                           self.config.ride_along_reach ** 2, RIDE_MIN_TRAVEL)
+
+
+@jit.kernel
+def _kept_place(xy, local, before, x, y, c, s, reach2, min_travel):
+    """Mask over the points ``xy`` (odometry frame; ``local`` in the scanner's frame) within
+    ``sqrt(reach2)`` of the scanner: a point ``before`` (the previous scanner frame, whose
+    pose is ``x, y`` and heading cosine and sine ``c, s``) within half their world distance
+    of the same scanner-frame place, while that distance is at least ``min_travel``."""
+    out = np.zeros(xy.shape[0], np.bool_)
+    for i in range(xy.shape[0]):
+        if local[i, 0] * local[i, 0] + local[i, 1] * local[i, 1] > reach2:
+            continue
+        for j in range(before.shape[0]):
+            bx, by = before[j, 0], before[j, 1]
+            dx, dy = local[i, 0] - bx, local[i, 1] - by
+            in_scanner = np.sqrt(dx * dx + dy * dy)
+            dx = xy[i, 0] - ((x + c * bx) - s * by)
+            dy = xy[i, 1] - ((y + s * bx) + c * by)
+            in_world = np.sqrt(dx * dx + dy * dy)
+            if in_world >= min_travel and in_scanner < 0.5 * in_world:
+                out[i] = True
+                break
+    return out
 
 
 def _people(people: People) -> tuple[np.ndarray, ...]:

@@ -75,7 +75,7 @@ class Hypotheses:
     def take(self, index) -> Hypotheses:
         """The hypotheses at ``index`` (a mask or indices), as a copy."""
         rows = self.rows
-        return Hypotheses(_raw(rows)[index].view(rows.dtype))
+        return Hypotheses(_records(_raw(rows)[index], rows.dtype))
 
     @staticmethod
     def concat(parts: list[Hypotheses], dim: int) -> Hypotheses:
@@ -84,8 +84,8 @@ class Hypotheses:
             return Hypotheses.empty(dim)
         if len(parts) == 1:
             return parts[0]
-        return Hypotheses(np.concatenate([_raw(p.rows) for p in parts])
-                          .view(parts[0].rows.dtype))
+        return Hypotheses(_records(np.concatenate([_raw(p.rows) for p in parts]),
+                                   parts[0].rows.dtype))
 
     @property
     def velocity(self) -> np.ndarray:
@@ -100,6 +100,13 @@ class Hypotheses:
 def _raw(rows: np.ndarray) -> np.ndarray:
     """The records as raw bytes (one opaque item each)."""
     return rows.view(_opaque(rows.dtype.itemsize))
+
+
+def _records(raw: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """Raw records (a new contiguous array of :func:`_raw` items) as ``dtype``
+    (``frombuffer``: a view without ``view``'s check of the fields, which costs more than
+    the copy)."""
+    return np.frombuffer(raw, dtype)
 
 
 @functools.cache
