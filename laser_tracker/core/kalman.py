@@ -121,17 +121,23 @@ def update_velocity(x_pred, P_pred, z, r):
     return x, P
 
 
+#: No row stands still (``TrackFilter.correct``).
+_NOT_STILL = np.zeros(0, bool)
+_NOT_STILL.flags.writeable = False
+
+
 @jit.kernel
 def _correct_velocity(state, P, t_state, blob, t, q, r, still):
     """The paper's filter supported by ``blob`` (k, 2) at ``t``: the velocity measured as the
-    displacement since ``t_state`` over the time (``still``: as zero, an object standing at
-    ``blob``), Eq. 9-13; rows ``[blob, velocity]`` and the covariances."""
+    displacement since ``t_state`` over the time (rows where ``still``, k or 0 values: as
+    zero, an object standing at ``blob``), Eq. 9-13; rows ``[blob, velocity]`` and the
+    covariances."""
     k = state.shape[0]
     out, P_out = np.empty((k, 4)), np.empty((k, 2, 2))
     Pp = np.empty((2, 2))
     for i in range(k):
         z0 = z1 = 0.0
-        if not still:
+        if not (still.size and still[i]):
             dt = t - t_state[i]
             if dt < 1e-6:
                 dt = 1e-6
@@ -205,16 +211,22 @@ class TrackFilter:
         return state[:, :2] + state[:, 2:] * (t - t_state)[:, None]
 
     def correct(self, state: np.ndarray, P: np.ndarray, t_state: np.ndarray,
-                blob: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Update with supporting blobs (k, 2) at ``t``; returns state, P, position estimate."""
+                blob: np.ndarray, t: float, still: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Update with supporting blobs (k, 2) at ``t``; returns state, P, position estimate.
+        ``still`` (k,): rows of objects standing at ``blob``, whose velocity is measured as
+        zero (:meth:`hold`)."""
+        still = _NOT_STILL if still is None else still
         if self.paper:
             state, P = _correct_velocity(state, P, t_state, blob, float(t), self.config.q,
-                                         self.config.r, False)
+                                         self.config.r, still)
             return state, P, blob
         dt = np.maximum(t - t_state, 1e-6)
         x, Pp = cv_predict(state, P, dt, self.config.cv_accel_noise)
-        x, P = cv_update(x, Pp, blob, self.config.cv_position_noise)
-        return x, P, x[:, :2]
+        x, P_new = cv_update(x, Pp, blob, self.config.cv_position_noise)
+        if still.any():
+            x[still], P_new[still] = self.hold(state[still], P[still], blob[still])
+        return x, P_new, x[:, :2]
 
     def position_covariance(self, P: np.ndarray, t_state: np.ndarray,
                             t: float) -> np.ndarray:
@@ -228,8 +240,8 @@ class TrackFilter:
              position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A stopped object at ``position`` (k, 2): the velocity measured as zero."""
         if self.paper:
-            return _correct_velocity(state, P, np.zeros(0), position, 0.0, self.config.q,
-                                     self.config.r, True)
+            return _correct_velocity(state, P, _NOT_STILL, position, 0.0, self.config.q,
+                                     self.config.r, np.ones(state.shape[0], bool))
         x = state.copy()
         x[:, :2] = position
         S = P[:, 2:, 2:] + self.config.cv_position_noise * _I2
