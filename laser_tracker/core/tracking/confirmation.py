@@ -98,10 +98,12 @@ class Confirmation(Role):
             candidates, confirmed = hyp.take(rows), hyp.take(hyp.confirmed)
             for rule, switch in RULES:
                 if getattr(c, switch) > 0:
-                    rows = rows[rule(c, candidates, confirmed, frame)]
-                    if not rows.size:
-                        break
-                    candidates = hyp.take(rows)
+                    allowed = rule(c, candidates, confirmed, frame)
+                    if not allowed.all():
+                        rows = rows[allowed]
+                        if not rows.size:
+                            break
+                        candidates = candidates.take(allowed)
             hyp.rows['confirmed'][rows] = True
             self.stats['confirmed'] += int(rows.size)
         return rows
