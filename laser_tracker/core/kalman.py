@@ -123,17 +123,15 @@ def update_velocity(x_pred, P_pred, z, r):
 
 #: No row stands still (``TrackFilter.correct``).
 _NOT_STILL = np.zeros(0, bool)
-_NOT_STILL.flags.writeable = False
 
 
 @jit.kernel
-def _correct_velocity(state, P, t_state, blob, t, q, r, still):
+def _correct_velocity(state, P, t_state, blob, t, q, r, still, out, P_out):
     """The paper's filter supported by ``blob`` (k, 2) at ``t``: the velocity measured as the
     displacement since ``t_state`` over the time (rows where ``still``, k or 0 values: as
-    zero, an object standing at ``blob``), Eq. 9-13; rows ``[blob, velocity]`` and the
-    covariances."""
+    zero, an object standing at ``blob``), Eq. 9-13; rows ``[blob, velocity]`` into ``out``
+    and the covariances into ``P_out`` (which may be ``state`` and ``P``)."""
     k = state.shape[0]
-    out, P_out = np.empty((k, 4)), np.empty((k, 2, 2))
     Pp = np.empty((2, 2))
     for i in range(k):
         z0 = z1 = 0.0
@@ -146,7 +144,6 @@ def _correct_velocity(state, P, t_state, blob, t, q, r, still):
         _predict_row(P, i, q, Pp)
         _update_row(state[i, 2], state[i, 3], Pp, z0, z1, r, out, P_out, i, 2)
         out[i, 0], out[i, 1] = blob[i, 0], blob[i, 1]
-    return out, P_out
 
 
 def cv_predict(x: np.ndarray, P: np.ndarray, dt: np.ndarray,
@@ -218,15 +215,33 @@ class TrackFilter:
         zero (:meth:`hold`)."""
         still = _NOT_STILL if still is None else still
         if self.paper:
-            state, P = _correct_velocity(state, P, t_state, blob, float(t), self.config.q,
-                                         self.config.r, still)
-            return state, P, blob
+            k = state.shape[0]
+            out, P_out = np.empty((k, 4)), np.empty((k, 2, 2))
+            _correct_velocity(state, P, t_state, blob, float(t), self.config.q, self.config.r,
+                              still, out, P_out)
+            return out, P_out, blob
         dt = np.maximum(t - t_state, 1e-6)
         x, Pp = cv_predict(state, P, dt, self.config.cv_accel_noise)
         x, P_new = cv_update(x, Pp, blob, self.config.cv_position_noise)
         if still.any():
             x[still], P_new[still] = self.hold(state[still], P[still], blob[still])
         return x, P_new, x[:, :2]
+
+    def support(self, hyp, blob: np.ndarray, t: float,
+                still: np.ndarray | None = None) -> None:
+        """:meth:`correct` of the hypotheses ``hyp`` (``tracking.state.Hypotheses``) in
+        place: their state, covariance, position and time."""
+        rows = hyp.rows
+        if self.paper:
+            _correct_velocity(rows['state'], rows['P'], rows['t_state'], blob, float(t),
+                              self.config.q, self.config.r,
+                              _NOT_STILL if still is None else still, rows['state'],
+                              rows['P'])
+            rows['position'] = blob
+        else:
+            rows['state'], rows['P'], rows['position'] = self.correct(
+                rows['state'], rows['P'], rows['t_state'], blob, t, still)
+        rows['t_state'] = t
 
     def position_covariance(self, P: np.ndarray, t_state: np.ndarray,
                             t: float) -> np.ndarray:
@@ -240,8 +255,8 @@ class TrackFilter:
              position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A stopped object at ``position`` (k, 2): the velocity measured as zero."""
         if self.paper:
-            return _correct_velocity(state, P, _NOT_STILL, position, 0.0, self.config.q,
-                                     self.config.r, np.ones(state.shape[0], bool))
+            k = state.shape[0]
+            return self.correct(state, P, np.zeros(k), position, 0.0, np.ones(k, bool))[:2]
         x = state.copy()
         x[:, :2] = position
         S = P[:, 2:, 2:] + self.config.cv_position_noise * _I2

@@ -87,8 +87,7 @@ class PersonAssociation(Role):
         which = match.person_of[rows]
         persons, free, spread = frame.persons[which], frame.free[which], frame.spread[which]
         d = np.maximum(np.hypot(*(persons - pred[rows]).T) - c.person_tolerance, 0.0)
-        state, P, position = self.filter.correct(out.state, out.P, out.t_state, persons, t)
-        out.state, out.P, out.position, out.t_state = state, P, position, t
+        self.filter.support(out, persons, t)
         out.weight = _percent(out.weight + c.w_inc - c.w_dec / c.distance_unit * d)
         out.samples += 1
         out.person_samples += 1
@@ -141,11 +140,9 @@ class BlobAssociation(Role):
         c, t = self.config, frame.stamp
         out = hyp.take(hi)
         d = match.d
-        state, P, position = self.filter.correct(out.state, out.P, out.t_state, frame.xy[bi],
-                                                 t)
-        out.state, out.P, out.position, out.t_state = state, P, position, t
+        self.filter.support(out, frame.xy[bi], t)
         weight = _percent(out.weight + (c.w_inc - c.w_dec / c.distance_unit * d))
-        out.weight = wall_penalty(c, weight, state[:, 2:], frame.structure[bi])
+        out.weight = wall_penalty(c, weight, out.velocity, frame.structure[bi])
         out.samples += 1
         out.supported, out.stopped = True, False
         self.identity.split(out, hi, d)
@@ -158,7 +155,7 @@ def _claims(pred, persons, confidence, free, xy, gate, create_confidence, radius
     nearest detection of each hypothesis within ``gate`` (-1: none), the detections no
     prediction is within ``gate`` of that are confident enough to start one (fresh), and
     the blobs ``xy`` within ``radius`` of the detections used (claimed, or fresh and
-    walked in), None when none is used or ``radius`` is 0."""
+    walked in), None when there are none."""
     k, p, b = pred.shape[0], persons.shape[0], xy.shape[0]
     person_of = np.full(k, -1, np.intp)
     claimed = np.zeros(p, np.bool_)
@@ -195,7 +192,7 @@ def _claims(pred, persons, confidence, free, xy, gate, create_confidence, radius
                 elif d < least:
                     least = d
         legs[m] = least <= radius
-    return person_of, fresh, legs
+    return person_of, fresh, legs if legs.any() else None
 
 
 @jit.kernel

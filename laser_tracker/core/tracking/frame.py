@@ -125,7 +125,9 @@ class Measurements(Role):
         frame = Frame(float(detections.stamp), scanner, *self._usable_blobs(detections),
                       *_people(detections.people), *_segments(detections.segments))
         if self.config.ride_along_reach > 0:
-            frame.without_blobs(self._riding_with_scanner(frame))
+            riding = self._riding_with_scanner(frame)
+            if riding.any():
+                frame.without_blobs(riding)
         return frame
 
     def remember(self, frame: Frame) -> None:
@@ -177,7 +179,7 @@ class Measurements(Role):
         self.ride_local = local
         if not xy.shape[0] or before.shape[0] == 0 or pose is None:
             return np.zeros(xy.shape[0], bool)
-        x, y, th = (float(v) for v in pose) if pose.size == 3 else (math.nan,) * 3
+        x, y, th = pose.tolist() if pose.size == 3 else (math.nan,) * 3
         return _kept_place(xy, local, before, x, y, math.cos(th), math.sin(th),
                            self.config.ride_along_reach ** 2, RIDE_MIN_TRAVEL)
 

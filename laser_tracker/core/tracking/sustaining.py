@@ -55,9 +55,7 @@ class Sustaining(Role):
         if not len(hyp):
             return hyp
         still = np.hypot(*(at - hyp.position).T) <= self.config.stop_radius
-        hyp.state, hyp.P, hyp.position = self.filter.correct(hyp.state, hyp.P, hyp.t_state,
-                                                             at, t, still)
-        hyp.t_state = t
+        self.filter.support(hyp, at, t, still)
         hyp.supported = False
         hyp.stopped = still
         return hyp
