@@ -38,7 +38,7 @@ class Scanner:
         self.pose, self.previous, self.previous_stamp = pose, previous, previous_stamp
         x, y, th = pose.tolist() if pose.size == 3 else (0.0, 0.0, 0.0)
         finite = math.isfinite(x) and math.isfinite(y) and math.isfinite(th)
-        self._place = np.array((x, y)) if finite else None
+        self._place = (x, y) if finite else None
         self._cos, self._sin = (math.cos(th), math.sin(th)) if finite else (0.0, 0.0)
 
     def to_scanner(self, xy: np.ndarray) -> np.ndarray:
@@ -46,22 +46,8 @@ class Scanner:
         pose)."""
         if self._place is None:
             return np.full_like(xy, np.nan)
-        c, s = self._cos, self._sin
-        d = xy - self._place
-        out = d * c
-        out[:, 0] += s * d[:, 1]          # c dx + s dy
-        out[:, 1] -= s * d[:, 0]          # -s dx + c dy
-        return out
-
-    @staticmethod
-    def from_scanner(local: np.ndarray, pose) -> np.ndarray:
-        """Scanner-frame points (k, 2) of scanner ``pose`` in the odometry frame."""
-        if pose is None or np.asarray(pose).size != 3:
-            return np.full_like(local, np.nan)
-        x, y, th = (float(v) for v in pose)
-        c, s = math.cos(th), math.sin(th)
-        return np.column_stack((x + c * local[:, 0] - s * local[:, 1],
-                                y + s * local[:, 0] + c * local[:, 1]))
+        x, y = self._place
+        return _into_frame(xy, x, y, self._cos, self._sin)
 
     def motion(self, t: float):
         """(velocity (2,), turn rate, speed) of the scanner over the last frame, or None."""
@@ -182,6 +168,18 @@ class Measurements(Role):
         x, y, th = pose.tolist() if pose.size == 3 else (math.nan,) * 3
         return _kept_place(xy, local, before, x, y, math.cos(th), math.sin(th),
                            self.config.ride_along_reach ** 2, RIDE_MIN_TRAVEL)
+
+
+@jit.kernel
+def _into_frame(xy, x, y, c, s):
+    """The points ``xy`` (k, 2) in the frame at ``x, y`` whose heading has cosine ``c`` and
+    sine ``s``: ``(c dx + s dy, c dy - s dx)``."""
+    out = np.empty((xy.shape[0], 2))
+    for i in range(xy.shape[0]):
+        dx, dy = xy[i, 0] - x, xy[i, 1] - y
+        out[i, 0] = dx * c + s * dy
+        out[i, 1] = dy * c - s * dx
+    return out
 
 
 @jit.kernel
