@@ -82,21 +82,17 @@ class PersonAssociation(Role):
         rows = np.flatnonzero(match.supported)
         if not rows.size:
             return Hypotheses.empty(hyp.dim)
-        c, t = self.config, frame.stamp
+        c = self.config
         out = hyp.take(rows)
         which = match.person_of[rows]
-        persons, free, spread = frame.persons[which], frame.free[which], frame.spread[which]
-        d = np.maximum(np.hypot(*(persons - pred[rows]).T) - c.person_tolerance, 0.0)
-        self.filter.support(out, persons, t)
-        out.weight = _percent(out.weight + c.w_inc - c.w_dec / c.distance_unit * d)
-        out.samples += 1
-        out.person_samples += 1
+        persons = frame.persons[which]
+        self.filter.support(out, persons, frame.stamp)
+        o = out.rows
+        _person_measured(o['weight'], o['samples'], o['person_samples'], o['spread'],
+                         o['origin'], pred[rows], persons, frame.free[which],
+                         frame.spread[which], c.w_inc, c.w_dec / c.distance_unit,
+                         c.person_tolerance, c.gait_spread)
         out.supported, out.stopped = True, False
-        least, largest = out.spread[:, 0], out.spread[:, 1]
-        least[:] = np.fmin(least, spread)
-        largest[:] = np.fmax(largest, spread)
-        walks = free | ((c.gait_spread > 0) & (largest - least >= c.gait_spread))
-        out.origin = np.where(walks & (out.origin == PERSON), PERSON_WALKED_IN, out.origin)
         return out
 
 
@@ -147,6 +143,27 @@ class BlobAssociation(Role):
         out.supported, out.stopped = True, False
         self.identity.split(out, hi, d)
         return out
+
+
+@jit.kernel
+def _person_measured(weight, samples, person_samples, spread, origin, pred, persons, free,
+                     seen, w_inc, w_dec, tolerance, gait):
+    """Hypotheses (their fields, in place) predicted at ``pred`` and supported by person
+    detections ``persons`` (walked in: ``free``; leg separation ``seen``, NaN: none): Eq. 3
+    with the distance beyond ``tolerance`` (``w_dec`` per metre), one more sample of both
+    kinds, the least and largest separation seen, and walking (``PERSON_WALKED_IN``) once
+    walked in or the separation varied by ``gait`` (above 0)."""
+    for i in range(weight.size):
+        d = max(np.hypot(persons[i, 0] - pred[i, 0], persons[i, 1] - pred[i, 1]) - tolerance,
+                0.0)
+        weight[i] = min(max(weight[i] + w_inc - w_dec * d, 0.0), 100.0)
+        samples[i] += 1
+        person_samples[i] += 1
+        least, largest = np.fmin(spread[i, 0], seen[i]), np.fmax(spread[i, 1], seen[i])
+        spread[i, 0], spread[i, 1] = least, largest
+        walks = free[i] or (gait > 0 and largest - least >= gait)
+        if walks and origin[i] == PERSON:
+            origin[i] = PERSON_WALKED_IN
 
 
 @jit.kernel
