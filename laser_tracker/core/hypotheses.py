@@ -357,11 +357,13 @@ def _exercise_kernels() -> None:
         association._eq2_and_gates(xy, xy, r['stopped'], mask, mask, 50.0, 0.1, 60.0, True,
                                    0.7, 0.5)
         association._claims(xy, xy, np.ones(n), mask, xy, 0.5, 0.5, 0.45)
+        association._equation_3(r['weight'], r['samples'], np.ones(n), 60.0, 150.0)
         association._person_measured(r['weight'], r['samples'], r['person_samples'],
                                      r['spread'], r['origin'], xy, xy, mask, np.ones(n), 60.0,
                                      150.0, 0.25, 0.1)
         frame_kernels._into_frame(r['position'], 0.0, 0.0, 1.0, 0.0)
         frame_kernels._into_frame(xy, 0.0, 0.0, 1.0, 0.0)
+        frame_kernels._all_finite(xy, np.ones(n))
         frame_kernels._kept_place(xy, xy, xy, 0.0, 0.0, 1.0, 0.0, 1.0, 0.05)
         identity._duplicates(r['position'], r['state'], r['supported'], r['weight'],
                              r['samples'], r['track_id'], r['confirmed'], r['origin'], 0.09,

@@ -43,11 +43,6 @@ def wall_penalty(config, weight: np.ndarray, velocity: np.ndarray,
     return np.where(along, weight * c.wall_factor, weight)
 
 
-def _percent(weight: np.ndarray) -> np.ndarray:
-    """``weight`` clipped to 0..100 (``np.clip``'s values, without its overhead)."""
-    return np.minimum(np.maximum(weight, 0.0), 100.0)
-
-
 @dataclass
 class PersonMatch:
     """Person detections against the hypotheses: ``person_of`` (k,) the detection that
@@ -137,12 +132,21 @@ class BlobAssociation(Role):
         out = hyp.take(hi)
         d = match.d
         self.filter.support(out, frame.xy[bi], t)
-        weight = _percent(out.weight + (c.w_inc - c.w_dec / c.distance_unit * d))
-        out.weight = wall_penalty(c, weight, out.velocity, frame.structure[bi])
-        out.samples += 1
+        o = out.rows
+        _equation_3(o['weight'], o['samples'], d, c.w_inc, c.w_dec / c.distance_unit)
+        out.weight = wall_penalty(c, o['weight'], out.velocity, frame.structure[bi])
         out.supported, out.stopped = True, False
         self.identity.split(out, hi, d)
         return out
+
+
+@jit.kernel
+def _equation_3(weight, samples, d, w_inc, w_dec):
+    """Equation 3 for hypotheses (their fields, in place) supported by blobs ``d`` from their
+    predictions (``w_dec`` per metre), clipped to 0..100; one more sample."""
+    for i in range(weight.size):
+        weight[i] = min(max(weight[i] + (w_inc - w_dec * d[i]), 0.0), 100.0)
+        samples[i] += 1
 
 
 @jit.kernel

@@ -170,6 +170,21 @@ class Measurements(Role):
                            self.config.ride_along_reach ** 2, RIDE_MIN_TRAVEL)
 
 
+_NONE = np.zeros(0)
+
+
+@jit.kernel
+def _all_finite(xy, values):
+    """Every value of ``xy`` (k, 2) and ``values`` is finite."""
+    for i in range(xy.shape[0]):
+        if not (math.isfinite(xy[i, 0]) and math.isfinite(xy[i, 1])):
+            return False
+    for i in range(values.size):
+        if not math.isfinite(values[i]):
+            return False
+    return True
+
+
 @jit.kernel
 def _into_frame(xy, x, y, c, s):
     """The points ``xy`` (k, 2) in the frame at ``x, y`` whose heading has cosine ``c`` and
@@ -234,8 +249,8 @@ def _finite_rows(xy: np.ndarray, values) -> tuple[np.ndarray, np.ndarray | None]
     when it has one per point: the points and the mask (None: all)."""
     values = np.asarray(values, dtype=float).reshape(-1)
     aligned = values.shape[0] == xy.shape[0]
-    if math.isfinite(xy.sum() + (values.sum() if aligned else 0.0)):
-        return xy, None                       # (a finite sum: every value is finite)
+    if _all_finite(xy, values if aligned else _NONE):
+        return xy, None
     ok = np.isfinite(xy).all(axis=1)
     if aligned:
         ok &= np.isfinite(values)
