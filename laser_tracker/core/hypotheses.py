@@ -350,6 +350,7 @@ def _exercise_kernels() -> None:
         h = Hypotheses.empty(2, n)
         h.P, h.weight, h.samples, h.spread = 0.006 * np.eye(2), 50.0, 1, np.nan
         r, xy, mask = h.rows, np.zeros((n, 2)), np.zeros(n, bool)
+        kalman_kernels._predict_positions(r['state'], r['t_state'], 1.0)
         kalman_kernels._correct_velocity(r['state'], r['P'], r['t_state'], xy, 1.0, 0.1, 0.1,
                                          mask, r['state'], r['P'])
         kalman_kernels._correct_velocity(r['state'], r['P'], r['t_state'], xy, 1.0, 0.1, 0.1,

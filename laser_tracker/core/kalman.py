@@ -121,6 +121,17 @@ def update_velocity(x_pred, P_pred, z, r):
     return x, P
 
 
+@jit.kernel
+def _predict_positions(state, t_state, t):
+    """Rows ``[px, py, vx, vy]`` valid at ``t_state``: the positions at ``t``."""
+    out = np.empty((state.shape[0], 2))
+    for i in range(state.shape[0]):
+        dt = t - t_state[i]
+        out[i, 0] = state[i, 0] + state[i, 2] * dt
+        out[i, 1] = state[i, 1] + state[i, 3] * dt
+    return out
+
+
 #: No row stands still (``TrackFilter.correct``).
 _NOT_STILL = np.zeros(0, bool)
 
@@ -205,7 +216,7 @@ class TrackFilter:
     @staticmethod
     def predict(state: np.ndarray, t_state: np.ndarray, t: float) -> np.ndarray:
         """Predicted positions (k, 2) at time ``t``."""
-        return state[:, :2] + state[:, 2:] * (t - t_state)[:, None]
+        return _predict_positions(state, t_state, float(t))
 
     def correct(self, state: np.ndarray, P: np.ndarray, t_state: np.ndarray,
                 blob: np.ndarray, t: float, still: np.ndarray | None = None
