@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.core import jit
-from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.frame import Frame
 from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import PERSON, PERSON_WALKED_IN, Hypotheses
