@@ -73,7 +73,7 @@ class PersonAssociation(Role):
         """The hypotheses a detection supports, updated: Eq. 3 with its distance, Kalman,
         one more sample; a person seen in space that was free before, or whose legs'
         separation has varied by ``gait_spread``, is walking (``PERSON_WALKED_IN``)."""
-        rows = np.flatnonzero(match.supported)
+        rows = match.supported.nonzero()[0]
         if not rows.size:
             return Hypotheses.empty(hyp.dim)
         c = self.config

@@ -93,7 +93,7 @@ class Confirmation(Role):
         confirmed now."""
         c = self.config
         # The candidates: not confirmed yet, with the paper's m samples.
-        rows = np.flatnonzero(~hyp.confirmed & (hyp.samples >= c.confirm_samples))
+        rows = (~hyp.confirmed & (hyp.samples >= c.confirm_samples)).nonzero()[0]
         if rows.size:
             candidates, confirmed = hyp.take(rows), hyp.take(hyp.confirmed)
             for rule, switch in RULES:

@@ -28,7 +28,7 @@ class Sustaining(Role):
     def sustain(self, hyp: Hypotheses, pred: np.ndarray, frame: Frame,
                 unsupported: np.ndarray) -> list[Hypotheses]:
         """The ``unsupported`` hypotheses: those held by a segment, then those coasting."""
-        rest = np.flatnonzero(unsupported)
+        rest = unsupported.nonzero()[0]
         if not rest.size:
             return []
         segment = self.segment_of(hyp, rest, pred[rest], frame)
