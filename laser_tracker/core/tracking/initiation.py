@@ -72,13 +72,14 @@ class Initiation(Role):
                 continue
             ni, pi, disp = _pairs(new_xy, todo, earlier, c.max_speed * dt, c.min_displacement)
             if ni.size:
-                pairs.append((new_xy[ni], earlier[pi], np.full(ni.size, dt), structure[ni],
-                              np.column_stack((disp, -weight[ni]))))
+                pairs.append((new_xy[ni], earlier[pi], np.full(ni.size, dt), structure[ni], disp,
+                              weight[ni]))
         if not pairs:
             return Hypotheses.empty(self.filter.dim)
-        now, then, dt, structure, key = (np.concatenate(p) for p in zip(*pairs))
+        now, then, dt, structure, disp, weight = pairs[0] if len(pairs) == 1 else \
+            (np.concatenate(p) for p in zip(*pairs))
         if now.shape[0] > c.max_hypotheses:    # a burst: the pairs of the strongest blobs
-            keep = np.lexsort((key[:, 0], key[:, 1]))[:c.max_hypotheses]
+            keep = np.lexsort((disp, -weight))[:c.max_hypotheses]
             now, then, dt, structure = now[keep], then[keep], dt[keep], structure[keep]
         return self._create(frame, now, then, dt, structure)
 

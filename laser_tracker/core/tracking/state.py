@@ -64,7 +64,9 @@ class Hypotheses:
 
     @classmethod
     def empty(cls, dim: int, n: int = 0) -> Hypotheses:
-        return cls(np.zeros(n, hypothesis_dtype(dim)))
+        """``n`` hypotheses, zero in every field (none: one shared empty set, as nothing can
+        be written into it)."""
+        return cls(np.zeros(n, hypothesis_dtype(dim))) if n else _none(dim)
 
     def __len__(self) -> int:
         return int(self.rows.shape[0])
@@ -108,6 +110,11 @@ def _records(opaque: np.ndarray, dtype: np.dtype) -> Hypotheses:
     (``frombuffer``: a view without ``view``'s check of the fields, which costs more than
     the copy)."""
     return Hypotheses(np.frombuffer(opaque, dtype), opaque)
+
+
+@functools.cache
+def _none(dim: int) -> Hypotheses:
+    return Hypotheses(np.zeros(0, hypothesis_dtype(dim)))
 
 
 @functools.cache
