@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from laser_tracker.core import jit
+from laser_tracker.core.blobs import _root
 from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import MOTION, PERSON, Hypotheses
@@ -182,14 +183,6 @@ def _duplicates(position, state, supported, weight, samples, track_id, confirmed
             kept_origin[n] = MOTION if open_[g] else PERSON
             n += 1
     return kept, src, kept_samples, kept_origin
-
-
-@jit.inline
-def _root(root, i):
-    while root[i] != i:
-        root[i] = root[root[i]]
-        i = root[i]
-    return i
 
 
 @jit.inline
