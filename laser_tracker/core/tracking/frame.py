@@ -112,7 +112,7 @@ class Measurements(Role):
                       *_people(detections.people), *_segments(detections.segments))
         if self.config.ride_along_reach > 0:
             riding = self._riding_with_scanner(frame)
-            if riding.any():
+            if riding is not None:
                 frame.without_blobs(riding)
         return frame
 
@@ -151,8 +151,8 @@ class Measurements(Role):
             self.stats['blobs_dropped'] += int(kept.size - c.max_blobs)
         return xy[ok], _aligned(blobs.structure, ok, n, np.nan)
 
-    def _riding_with_scanner(self, frame: Frame) -> np.ndarray:
-        """Mask: motion blobs within ``ride_along_reach`` of the scanner that kept their place
+    def _riding_with_scanner(self, frame: Frame) -> np.ndarray | None:
+        """Mask (None: none): motion blobs within ``ride_along_reach`` of the scanner that kept their place
         in its frame since the previous frame (a blob of then within half their world
         displacement of the same scanner-frame place) while they moved at least
         ``RIDE_MIN_TRAVEL`` in the world: the robot's own body, before the self-mask has
@@ -164,7 +164,7 @@ class Measurements(Role):
         before, pose = self.ride_local, self.previous_pose
         self.ride_local = local
         if not xy.shape[0] or before.shape[0] == 0 or pose is None:
-            return np.zeros(xy.shape[0], bool)
+            return None
         x, y, th = pose.tolist() if pose.size == 3 else (math.nan,) * 3
         return _kept_place(xy, local, before, x, y, math.cos(th), math.sin(th),
                            self.config.ride_along_reach ** 2, RIDE_MIN_TRAVEL)
@@ -202,7 +202,8 @@ def _kept_place(xy, local, before, x, y, c, s, reach2, min_travel):
     """Mask over the points ``xy`` (odometry frame; ``local`` in the scanner's frame) within
     ``sqrt(reach2)`` of the scanner: a point ``before`` (the previous scanner frame, whose
     pose is ``x, y`` and heading cosine and sine ``c, s``) within half their world distance
-    of the same scanner-frame place, while that distance is at least ``min_travel``."""
+    of the same scanner-frame place, while that distance is at least ``min_travel``; None
+    for none."""
     out = np.zeros(xy.shape[0], np.bool_)
     for i in range(xy.shape[0]):
         if local[i, 0] * local[i, 0] + local[i, 1] * local[i, 1] > reach2:
@@ -217,7 +218,7 @@ def _kept_place(xy, local, before, x, y, c, s, reach2, min_travel):
             if in_world >= min_travel and in_scanner < 0.5 * in_world:
                 out[i] = True
                 break
-    return out
+    return out if out.any() else None
 
 
 def _people(people: People) -> tuple[np.ndarray, ...]:
