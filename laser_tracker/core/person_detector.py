@@ -107,15 +107,25 @@ class LegClassifier:
 
 
 def probability(z: np.ndarray) -> np.ndarray:
-    """The probability of raw scores ``z``: ``1 / (1 + exp(-clip(z, -50, 50)))``, by numpy's
-    exp (kept bit for bit), in place on one new array (``np.clip`` costs more than the
-    rest)."""
-    p = np.maximum(z, -50.0)
-    np.minimum(p, 50.0, out=p)
-    np.negative(p, out=p)
-    np.exp(p, out=p)
-    p += 1.0
-    return np.divide(1.0, p, out=p)
+    """The probability of raw scores ``z``: ``1 / (1 + exp(-clip(z, -50, 50)))``."""
+    return _logistic(_exponents(z))
+
+
+def _logistic(w: np.ndarray) -> np.ndarray:
+    """``1 / (1 + exp(w))``, in place: numpy's exp (its SIMD exp, kept bit for bit; numba's
+    differs in the last bit now and then)."""
+    np.exp(w, out=w)
+    w += 1.0
+    return np.divide(1.0, w, out=w)
+
+
+@jit.kernel
+def _exponents(z):
+    """``-clip(z, -50, 50)``, a new array."""
+    out = np.empty(z.size)
+    for i in range(z.size):
+        out[i] = -min(max(z[i], -50.0), 50.0)
+    return out
 
 
 @jit.kernel
@@ -139,11 +149,11 @@ def _decision(features, feature, threshold, value, bias):
 @jit.kernel
 def _classified(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_width,
                 max_range, feature, threshold, value, bias):
-    """The scan's segments (``segmentation._clusters``) and their raw scores, in one
-    call."""
+    """The scan's segments (``segmentation._clusters``) and the exponents of their leg
+    probabilities (:func:`_exponents` of their raw scores), in one call."""
     clusters = _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points,
                          max_width, max_range)
-    return clusters, _decision(clusters[3], feature, threshold, value, bias)
+    return clusters, _exponents(_decision(clusters[3], feature, threshold, value, bias))
 
 
 def save_model(path: str | Path, classifier: LegClassifier) -> None:
@@ -342,10 +352,10 @@ class PersonDetector:
         """The scan's segments within ``max_range`` and their leg probabilities (one kernel
         call)."""
         s = self.segments
-        raw, z = _classified(*kernel_arguments(scan, s.jump_distance, s.min_points,
+        raw, w = _classified(*kernel_arguments(scan, s.jump_distance, s.min_points,
                                                s.max_width, self.config.max_range),
                              *self.classifier.arrays)
-        return as_clusters(raw), probability(z)
+        return as_clusters(raw), _logistic(w)
 
     def detect(self, scan: Scan) -> PersonDetections:
         c = self.config
