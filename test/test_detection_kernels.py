@@ -10,8 +10,12 @@ import pytest
 from numba.core.registry import CPUDispatcher
 
 from laser_tracker.core import blobs as blob_kernels
-from laser_tracker.core import (difference, egomotion, grid, icp, jit, person_detector,
-                               segmentation, self_mask)
+from laser_tracker.core import (difference, egomotion, grid, icp, jit, kalman,
+                               person_detector, segmentation, self_mask)
+from laser_tracker.core.detections import Blobs, Detections, People, Segments
+from laser_tracker.core.hypotheses import HypothesisConfig, HypothesisTracker
+from laser_tracker.core.tracking import (association, frame, identity, initiation,
+                                         sustaining)
 from laser_tracker.core.blobs import BlobConfig
 from laser_tracker.core.difference import DifferenceConfig, changed_with_history
 from laser_tracker.core.grid import (FREE, OCCUPIED, GridBuilder, GridConfig, GridHistory,
@@ -201,7 +205,7 @@ def test_no_scan_compiles_after_the_start():
     """Every kernel a scan calls was compiled (or loaded from the cache) when the stage was
     made: the first scans run at full speed."""
     modules = (grid, difference, blob_kernels, segmentation, person_detector, icp, self_mask,
-               egomotion)
+               egomotion, kalman, association, frame, identity, initiation, sustaining)
     Pipeline()
 
     def signatures():
@@ -221,3 +225,29 @@ def test_no_scan_compiles_after_the_start():
         pipeline.add_odometry(t, (0.02 * k, 0.0, 0.0))
         pipeline.step(scan, want_grids=k == 3)
     assert signatures() == before
+    _track_walkers_and_a_stop()          # every role of the tracker, with 0 to many rows
+    assert signatures() == before
+
+
+def _track_walkers_and_a_stop():
+    """Two walkers (two legs each, detected as people, splitting and merging), one who
+    stops (held by a segment), a mover alone, on a moving scanner."""
+    tracker = HypothesisTracker(HypothesisConfig(confirm_min_travel=0.0, person_min_travel=0.0,
+                                                 new_when_ungated=True, gait_spread=0.05))
+    for k in range(20):
+        t = 0.1 * k
+        walkers = [(1.0 + 0.1 * k, 0.5), (2.0, -1.0 + 0.12 * k)]
+        stop = (3.0 + 0.1 * min(k, 8), 1.0)
+        legs = [(x + dx, y) for x, y in walkers for dx in (-0.1, 0.1)]
+        blobs = np.array(legs + ([stop] if k < 8 else []) + [(0.5 * k, -3.0)])
+        people = np.array(walkers + ([stop] if k % 3 else []))
+        det = Detections(stamp=t, origin=np.array([0.05 * k, 0.0, 0.01 * k]),
+                         blobs=Blobs(xy=blobs, cells=np.full(len(blobs), 3),
+                                     extent=np.full(len(blobs), 0.1),
+                                     structure=np.where(np.arange(len(blobs)) % 2, 0.3,
+                                                        np.nan)))
+        det.people = People(xy=people, confidence=np.full(len(people), 0.9),
+                            free=np.arange(len(people)) == 0, spread=np.full(len(people), 0.2),
+                            static=np.zeros(len(people), bool))
+        det.segments = Segments(xy=np.array(legs + [stop]), leg=np.full(len(legs) + 1, 0.5))
+        tracker.update(det)

@@ -172,6 +172,19 @@ def test_detector_with_a_bad_model_file_fails_at_construction(tmp_path):
 
 # ------------------------------------------------------------------- people from legs
 
+def test_the_pairing_kernel_computes_hypot_as_python_does():
+    """The lone leg's distance is ``math.hypot`` as CPython computes it (not libm's hypot,
+    which differs in the last bit now and then), so people stay where the list code put
+    them."""
+    import math
+
+    from laser_tracker.core.person_detector import _python_hypot
+    rng = np.random.default_rng(4)
+    xy = rng.normal(size=(20000, 2)) * 10.0 ** rng.uniform(-3, 2, size=(20000, 1))
+    assert [_python_hypot(x, y) for x, y in xy] == [math.hypot(x, y) for x, y in xy]
+    assert _python_hypot(0.0, 0.0) == 0.0 and _python_hypot(-3.0, 4.0) == 5.0
+
+
 def test_two_legs_make_one_person_at_their_midpoint():
     det = PersonDetector(PersonDetectorConfig(), width_classifier())
     out = det.detect(scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)]))

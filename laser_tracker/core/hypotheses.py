@@ -61,8 +61,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.config import param
+from laser_tracker.core import jit, kalman as kalman_kernels
 from laser_tracker.core.detections import Detections
 from laser_tracker.core.kalman import KalmanConfig, TrackFilter
+from laser_tracker.core.tracking import association, frame as frame_kernels, identity, \
+    initiation, sustaining
 from laser_tracker.core.tracking.association import BlobAssociation, PersonAssociation
 from laser_tracker.core.tracking.confirmation import Confirmation
 from laser_tracker.core.tracking.deletion import Deletion
@@ -275,6 +278,7 @@ class HypothesisTracker:
         self.roles = (self.measurements, self.identity, self.people, self.blobs,
                       self.sustaining, self.initiation, self.deletion, self.confirmation)
         self.reset()
+        jit.compiled('tracking kernels', _exercise_kernels)
 
     def reset(self, reason: str | None = None) -> None:
         """Forget every hypothesis and the earlier frames (ids keep counting up)."""
@@ -336,3 +340,40 @@ class HypothesisTracker:
                       moving=(speed2 >= c.moving_speed ** 2) & ~h.stopped,
                       kind=np.where(h.is_person(c.person_kind_samples),
                                     'person', 'object').astype(object))
+
+
+def _exercise_kernels() -> None:
+    """Every kernel of the tracker's roles and of the paper's filter called once with each
+    kind of argument a frame gives it (the fields of 0, 1 and more hypotheses are arrays of
+    different layouts to numba), so that no frame compiles."""
+    for n in (0, 1, 3):
+        h = Hypotheses.empty(2, n)
+        h.P, h.weight, h.samples, h.spread = 0.006 * np.eye(2), 50.0, 1, np.nan
+        r, xy, mask = h.rows, np.zeros((n, 2)), np.zeros(n, bool)
+        kalman_kernels._predict_positions(r['state'], r['t_state'], 1.0)
+        kalman_kernels._correct_velocity(r['state'], r['P'], r['t_state'], xy, 1.0, 0.1, 0.1,
+                                         mask, r['state'], r['P'])
+        kalman_kernels._correct_velocity(r['state'], r['P'], r['t_state'], xy, 1.0, 0.1, 0.1,
+                                         kalman_kernels._NOT_STILL, r['state'], r['P'])
+        association._eq2_and_gates(xy, xy, r['stopped'], mask, mask, 50.0, 0.1, 60.0, True,
+                                   0.7, 0.5)
+        association._claims(xy, xy, np.ones(n), mask, xy, 0.5, 0.5, 0.45)
+        association._equation_3(r['weight'], r['samples'], np.ones(n), 60.0, 150.0)
+        association._person_measured(r['weight'], r['samples'], r['person_samples'],
+                                     r['spread'], r['origin'], xy, xy, mask, np.ones(n), 60.0,
+                                     150.0, 0.25, 0.1)
+        frame_kernels._into_frame(r['position'], 0.0, 0.0, 1.0, 0.0)
+        frame_kernels._into_frame(xy, 0.0, 0.0, 1.0, 0.0)
+        frame_kernels._all_finite(xy, np.ones(n))
+        frame_kernels._kept_place(xy, xy, xy, 0.0, 0.0, 1.0, 0.0, 1.0, 0.05)
+        identity._duplicates(r['position'], r['state'], r['supported'], r['weight'],
+                             r['samples'], r['track_id'], r['confirmed'], r['origin'], 0.09,
+                             0.25)
+        sustaining._holding_segments(np.arange(n), xy, r['position'], r['person_samples'],
+                                     r['confirmed'], xy, np.ones(n), 2, 0.02, 0.5, 0.15)
+        initiation._pairs(xy, np.ones(n, bool), xy, 0.6, 0.1)
+    filter = TrackFilter(KalmanConfig())
+    state, P = filter.initial(np.ones((1, 2)), np.zeros((1, 2)), np.ones(1))
+    filter.correct(state, P, np.zeros(1), np.ones((1, 2)), 1.0)
+    x, P = kalman_kernels.predict_velocity(state[:, 2:], P, 0.1)
+    kalman_kernels.update_velocity(x, P, np.ones((1, 2)), 0.1)

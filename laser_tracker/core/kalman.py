@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.config import param
+from laser_tracker.core import jit
+from laser_tracker.core.jit import fma
 
 
 @dataclass(frozen=True)
@@ -64,18 +66,95 @@ def _inv2(s: np.ndarray) -> np.ndarray:
     return out
 
 
-def predict_velocity(x: np.ndarray, P: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray]:
+
+# The paper's filter, one hypothesis (row ``i``) at a time, compiled: a stacked numpy
+# formulation costs a BLAS call per 2 x 2 product. The products add as numpy's BLAS does
+# (each entry of a matrix product a chain of fused multiply-adds from zero, a matrix-vector
+# product its terms in reverse), so the numbers are those of the textbook matrix formulas
+# evaluated by numpy, bit for bit.
+
+@jit.inline
+def _predict_row(P, i, q, Pp):
+    """Eq. 10: P- = P + Q (x- = x, Eq. 9)."""
+    Pp[0, 0] = P[i, 0, 0] + q
+    Pp[0, 1] = P[i, 0, 1] + 0.0
+    Pp[1, 0] = P[i, 1, 0] + 0.0
+    Pp[1, 1] = P[i, 1, 1] + q
+
+
+@jit.inline
+def _update_row(x0, x1, Pp, z0, z1, r, x_out, P_out, i, col):
+    """Eq. 13, 11, 12 with H = I: K = P- (P- + R)^-1, x = x- + K (z - x-), P = P- - K P-;
+    the state into ``x_out[i, col:col + 2]``, the covariance into ``P_out[i]``."""
+    s00, s01, s10, s11 = Pp[0, 0] + r, Pp[0, 1] + 0.0, Pp[1, 0] + 0.0, Pp[1, 1] + r
+    det = s00 * s11 - s01 * s10
+    i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+    k00 = fma(Pp[0, 1], i10, fma(Pp[0, 0], i00, 0.0))
+    k01 = fma(Pp[0, 1], i11, fma(Pp[0, 0], i01, 0.0))
+    k10 = fma(Pp[1, 1], i10, fma(Pp[1, 0], i00, 0.0))
+    k11 = fma(Pp[1, 1], i11, fma(Pp[1, 0], i01, 0.0))
+    e0, e1 = z0 - x0, z1 - x1
+    x_out[i, col] = x0 + fma(k00, e0, fma(k01, e1, 0.0))
+    x_out[i, col + 1] = x1 + fma(k10, e0, fma(k11, e1, 0.0))
+    P_out[i, 0, 0] = Pp[0, 0] - fma(k01, Pp[1, 0], fma(k00, Pp[0, 0], 0.0))
+    P_out[i, 0, 1] = Pp[0, 1] - fma(k01, Pp[1, 1], fma(k00, Pp[0, 1], 0.0))
+    P_out[i, 1, 0] = Pp[1, 0] - fma(k11, Pp[1, 0], fma(k10, Pp[0, 0], 0.0))
+    P_out[i, 1, 1] = Pp[1, 1] - fma(k11, Pp[1, 1], fma(k10, Pp[0, 1], 0.0))
+
+
+@jit.kernel
+def predict_velocity(x, P, q):
     """Eq. 9 and 10: x- = x, P- = P + Q (stacked)."""
-    return x, P + q * _I2
+    out = np.empty((P.shape[0], 2, 2))
+    for i in range(P.shape[0]):
+        _predict_row(P, i, q, out[i])
+    return x, out
 
 
-def update_velocity(x_pred: np.ndarray, P_pred: np.ndarray, z: np.ndarray,
-                    r: float) -> tuple[np.ndarray, np.ndarray]:
+@jit.kernel
+def update_velocity(x_pred, P_pred, z, r):
     """Eq. 13, 11, 12 with H = I (stacked): gain, state and covariance."""
-    K = P_pred @ _inv2(P_pred + r * _I2)
-    x = x_pred + (K @ (z - x_pred)[:, :, None])[:, :, 0]
-    P = P_pred - K @ P_pred                  # (I - K) P-
+    k = x_pred.shape[0]
+    x, P = np.empty((k, 2)), np.empty((k, 2, 2))
+    for i in range(k):
+        _update_row(x_pred[i, 0], x_pred[i, 1], P_pred[i], z[i, 0], z[i, 1], r, x, P, i, 0)
     return x, P
+
+
+@jit.kernel
+def _predict_positions(state, t_state, t):
+    """Rows ``[px, py, vx, vy]`` valid at ``t_state``: the positions at ``t``."""
+    out = np.empty((state.shape[0], 2))
+    for i in range(state.shape[0]):
+        dt = t - t_state[i]
+        out[i, 0] = state[i, 0] + state[i, 2] * dt
+        out[i, 1] = state[i, 1] + state[i, 3] * dt
+    return out
+
+
+#: No row stands still (``TrackFilter.correct``).
+_NOT_STILL = np.zeros(0, bool)
+
+
+@jit.kernel
+def _correct_velocity(state, P, t_state, blob, t, q, r, still, out, P_out):
+    """The paper's filter supported by ``blob`` (k, 2) at ``t``: the velocity measured as the
+    displacement since ``t_state`` over the time (rows where ``still``, k or 0 values: as
+    zero, an object standing at ``blob``), Eq. 9-13; rows ``[blob, velocity]`` into ``out``
+    and the covariances into ``P_out`` (which may be ``state`` and ``P``)."""
+    k = state.shape[0]
+    Pp = np.empty((2, 2))
+    for i in range(k):
+        z0 = z1 = 0.0
+        if not (still.size and still[i]):
+            dt = t - t_state[i]
+            if dt < 1e-6:
+                dt = 1e-6
+            z0 = (blob[i, 0] - state[i, 0]) / dt
+            z1 = (blob[i, 1] - state[i, 1]) / dt
+        _predict_row(P, i, q, Pp)
+        _update_row(state[i, 2], state[i, 3], Pp, z0, z1, r, out, P_out, i, 2)
+        out[i, 0], out[i, 1] = blob[i, 0], blob[i, 1]
 
 
 def cv_predict(x: np.ndarray, P: np.ndarray, dt: np.ndarray,
@@ -137,20 +216,43 @@ class TrackFilter:
     @staticmethod
     def predict(state: np.ndarray, t_state: np.ndarray, t: float) -> np.ndarray:
         """Predicted positions (k, 2) at time ``t``."""
-        return state[:, :2] + state[:, 2:] * (t - t_state)[:, None]
+        return _predict_positions(state, t_state, float(t))
 
     def correct(self, state: np.ndarray, P: np.ndarray, t_state: np.ndarray,
-                blob: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Update with supporting blobs (k, 2) at ``t``; returns state, P, position estimate."""
-        dt = np.maximum(t - t_state, 1e-6)
+                blob: np.ndarray, t: float, still: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Update with supporting blobs (k, 2) at ``t``; returns state, P, position estimate.
+        ``still`` (k,): rows of objects standing at ``blob``, whose velocity is measured as
+        zero (:meth:`hold`)."""
+        still = _NOT_STILL if still is None else still
         if self.paper:
-            z = (blob - state[:, :2]) / dt[:, None]
-            v, Pp = predict_velocity(state[:, 2:], P, self.config.q)
-            v, P = update_velocity(v, Pp, z, self.config.r)
-            return np.concatenate((blob, v), axis=1), P, blob
+            k = state.shape[0]
+            out, P_out = np.empty((k, 4)), np.empty((k, 2, 2))
+            _correct_velocity(state, P, t_state, blob, float(t), self.config.q, self.config.r,
+                              still, out, P_out)
+            return out, P_out, blob
+        dt = np.maximum(t - t_state, 1e-6)
         x, Pp = cv_predict(state, P, dt, self.config.cv_accel_noise)
-        x, P = cv_update(x, Pp, blob, self.config.cv_position_noise)
-        return x, P, x[:, :2]
+        x, P_new = cv_update(x, Pp, blob, self.config.cv_position_noise)
+        if still.any():
+            x[still], P_new[still] = self.hold(state[still], P[still], blob[still])
+        return x, P_new, x[:, :2]
+
+    def support(self, hyp, blob: np.ndarray, t: float,
+                still: np.ndarray | None = None) -> None:
+        """:meth:`correct` of the hypotheses ``hyp`` (``tracking.state.Hypotheses``) in
+        place: their state, covariance, position and time."""
+        rows = hyp.rows
+        if self.paper:
+            _correct_velocity(rows['state'], rows['P'], rows['t_state'], blob, float(t),
+                              self.config.q, self.config.r,
+                              _NOT_STILL if still is None else still, rows['state'],
+                              rows['P'])
+            rows['position'] = blob
+        else:
+            rows['state'], rows['P'], rows['position'] = self.correct(
+                rows['state'], rows['P'], rows['t_state'], blob, t, still)
+        rows['t_state'] = t
 
     def position_covariance(self, P: np.ndarray, t_state: np.ndarray,
                             t: float) -> np.ndarray:
@@ -163,11 +265,9 @@ class TrackFilter:
     def hold(self, state: np.ndarray, P: np.ndarray,
              position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A stopped object at ``position`` (k, 2): the velocity measured as zero."""
-        k = state.shape[0]
         if self.paper:
-            v, Pp = predict_velocity(state[:, 2:], P, self.config.q)
-            v, P = update_velocity(v, Pp, np.zeros((k, 2)), self.config.r)
-            return np.concatenate((position, v), axis=1), P
+            k = state.shape[0]
+            return self.correct(state, P, np.zeros(k), position, 0.0, np.ones(k, bool))[:2]
         x = state.copy()
         x[:, :2] = position
         S = P[:, 2:, 2:] + self.config.cv_position_noise * _I2

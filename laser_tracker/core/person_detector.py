@@ -43,7 +43,7 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core import jit
-from laser_tracker.core.jit import pairwise_sum
+from laser_tracker.core.jit import fma, pairwise_sum
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import (FEATURE_NAMES, FEATURE_SET, Clusters,
                                              SegmentConfig, _clusters, as_clusters,
@@ -107,8 +107,25 @@ class LegClassifier:
 
 
 def probability(z: np.ndarray) -> np.ndarray:
-    """The probability of raw scores ``z`` (numpy's exp, kept bit for bit)."""
-    return 1.0 / (1.0 + np.exp(-np.clip(z, -50.0, 50.0)))
+    """The probability of raw scores ``z``: ``1 / (1 + exp(-clip(z, -50, 50)))``."""
+    return _logistic(_exponents(z))
+
+
+def _logistic(w: np.ndarray) -> np.ndarray:
+    """``1 / (1 + exp(w))``, in place: numpy's exp (its SIMD exp, kept bit for bit; numba's
+    differs in the last bit now and then)."""
+    np.exp(w, out=w)
+    w += 1.0
+    return np.divide(1.0, w, out=w)
+
+
+@jit.kernel
+def _exponents(z):
+    """``-clip(z, -50, 50)``, a new array."""
+    out = np.empty(z.size)
+    for i in range(z.size):
+        out[i] = -min(max(z[i], -50.0), 50.0)
+    return out
 
 
 @jit.kernel
@@ -132,11 +149,11 @@ def _decision(features, feature, threshold, value, bias):
 @jit.kernel
 def _classified(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_width,
                 max_range, feature, threshold, value, bias):
-    """The scan's segments (``segmentation._clusters``) and their raw scores, in one
-    call."""
+    """The scan's segments (``segmentation._clusters``) and the exponents of their leg
+    probabilities (:func:`_exponents` of their raw scores), in one call."""
     clusters = _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points,
                          max_width, max_range)
-    return clusters, _decision(clusters[3], feature, threshold, value, bias)
+    return clusters, _exponents(_decision(clusters[3], feature, threshold, value, bias))
 
 
 def save_model(path: str | Path, classifier: LegClassifier) -> None:
@@ -335,10 +352,10 @@ class PersonDetector:
         """The scan's segments within ``max_range`` and their leg probabilities (one kernel
         call)."""
         s = self.segments
-        raw, z = _classified(*kernel_arguments(scan, s.jump_distance, s.min_points,
+        raw, w = _classified(*kernel_arguments(scan, s.jump_distance, s.min_points,
                                                s.max_width, self.config.max_range),
                              *self.classifier.arrays)
-        return as_clusters(raw), probability(z)
+        return as_clusters(raw), _logistic(w)
 
     def detect(self, scan: Scan) -> PersonDetections:
         c = self.config
@@ -358,57 +375,104 @@ class PersonDetector:
 
 def _people(xy, prob, leg_threshold, partner_threshold, single_threshold, pair_distance,
             single_legs, weight, offset, max_legs):
-    """Pairs of legs, then lone legs, as people (see the module docstring).
+    """Pairs of legs, then lone legs, as people (see the module docstring): positions,
+    confidences, legs (indices into the clusters; -1: the hidden leg of a lone one)."""
+    return _pair_legs(xy, prob, float(leg_threshold), float(partner_threshold),
+                      float(single_threshold), float(pair_distance), bool(single_legs),
+                      float(weight), float(offset), int(max_legs), 2.0)
 
-    Few clusters reach the partner threshold (a handful per scan, at most ``max_legs``, the
-    most probable), so the pairing runs on Python lists: cheaper than numpy at that size.
-    """
+
+@jit.kernel
+def _pair_legs(xy, prob, leg_threshold, partner_threshold, single_threshold, pair_distance,
+               single_legs, weight, offset, max_legs, two):
+    """:func:`_people`. The candidates: clusters reaching the partner threshold (or the
+    lone-leg one), at most ``max_legs`` (the most probable). Pairs within ``pair_distance``
+    of which one reaches the leg threshold, greedily by their summed probability (ties: in
+    candidate order), each leg used once; then each lone leg reaching ``single_threshold``,
+    unless within ``pair_distance`` of a pair. Numbers as the former Python formulation gave
+    them: ``_python_hypot`` is ``math.hypot``, and a square is ``pow(d, two)`` (libm's pow,
+    as Python's ``d ** 2``; ``two`` is 2.0, an argument so that it is not folded into
+    ``d * d``)."""
     lowest = min(partner_threshold, single_threshold if single_legs else 1.0)
     cand = np.flatnonzero(prob >= lowest)
-    if cand.size == 0:
-        return _NO_PERSONS
     if cand.size > max_legs:
-        cand = cand[np.argsort(-prob[cand], kind='stable')[:max_legs]]
-    pts = xy[cand].tolist()
-    ps = prob[cand].tolist()
+        cand = cand[np.argsort(-prob[cand], kind='mergesort')[:max_legs]]
+    n = cand.size
     reach = pair_distance * pair_distance
-    options = []
-    for a in range(len(ps)):
-        pa = ps[a]
+    keys, first, second = np.empty(n * n), np.empty(n * n, np.intp), np.empty(n * n, np.intp)
+    m = 0
+    for a in range(n):
+        pa = prob[cand[a]]
         if pa < partner_threshold:
             continue
-        xa, ya = pts[a]
-        for b in range(a + 1, len(ps)):
-            pb = ps[b]
+        xa, ya = xy[cand[a], 0], xy[cand[a], 1]
+        for b in range(a + 1, n):
+            pb = prob[cand[b]]
             if pb < partner_threshold or (pa < leg_threshold and pb < leg_threshold):
                 continue
-            dx, dy = xa - pts[b][0], ya - pts[b][1]
+            dx, dy = xa - xy[cand[b], 0], ya - xy[cand[b], 1]
             if dx * dx + dy * dy <= reach:
-                options.append((-(pa + pb), a, b))
-    options.sort()
-    used = set()
-    rows = []                                   # x, y, confidence, leg, other leg
-    for _, a, b in options:
-        if a not in used and b not in used:
-            used.update((a, b))
-            rows.append((0.5 * (pts[a][0] + pts[b][0]), 0.5 * (pts[a][1] + pts[b][1]),
-                         0.5 * (ps[a] + ps[b]), a, b))
-    if single_legs:
-        paired = len(rows)
-        for a in range(len(ps)):
-            if a in used or ps[a] < single_threshold:
-                continue
-            x, y = pts[a]
-            scale = 1.0 + offset / max(math.hypot(x, y), 1e-6)
-            x, y = x * scale, y * scale
-            if all((x - q[0]) ** 2 + (y - q[1]) ** 2 > reach for q in rows[:paired]):
-                rows.append((x, y, weight * ps[a], a, -1))
-    if not rows:
-        return _NO_PERSONS
-    table = np.array(rows)
-    legs = table[:, 3:5].astype(np.intp)
-    legs = np.where(legs >= 0, cand[np.maximum(legs, 0)], -1)
-    return table[:, :2].copy(), table[:, 2].copy(), legs
+                keys[m], first[m], second[m] = -(pa + pb), a, b
+                m += 1
+    order = np.argsort(keys[:m], kind='mergesort')
+    used = np.zeros(n, np.bool_)
+    out = np.empty((n, 3))
+    legs = np.full((n, 2), -1, np.intp)
+    p = 0
+    for o in order:
+        a, b = first[o], second[o]
+        if not (used[a] or used[b]):
+            used[a] = used[b] = True
+            ca, cb = cand[a], cand[b]
+            out[p, 0] = 0.5 * (xy[ca, 0] + xy[cb, 0])
+            out[p, 1] = 0.5 * (xy[ca, 1] + xy[cb, 1])
+            out[p, 2] = 0.5 * (prob[ca] + prob[cb])
+            legs[p, 0], legs[p, 1] = ca, cb
+            p += 1
+    paired = p
+    for a in range(n if single_legs else 0):
+        ca = cand[a]
+        if used[a] or prob[ca] < single_threshold:
+            continue
+        x, y = xy[ca, 0], xy[ca, 1]
+        scale = 1.0 + offset / max(_python_hypot(x, y), 1e-6)
+        x, y = x * scale, y * scale
+        alone = True
+        for q in range(paired):
+            if math.pow(x - out[q, 0], two) + math.pow(y - out[q, 1], two) <= reach:
+                alone = False
+                break
+        if alone:
+            out[p, 0], out[p, 1], out[p, 2] = x, y, weight * prob[ca]
+            legs[p, 0] = ca
+            p += 1
+    return out[:p, :2].copy(), out[:p, 2].copy(), legs[:p].copy()
 
 
-_NO_PERSONS = (np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2), dtype=np.intp))
+@jit.inline
+def _python_hypot(x, y):
+    """``math.hypot(x, y)`` as CPython computes it (its ``vector_norm``: scaled, squared
+    and summed in doubled precision, with a differential correction of the square root),
+    which libm's hypot is not, for finite ``x, y`` not both subnormal."""
+    x, y = abs(x), abs(y)
+    largest = max(x, y)
+    if largest == 0.0:
+        return largest
+    scale = math.ldexp(1.0, -math.frexp(largest)[1])
+    csum, frac1, frac2 = 1.0, 0.0, 0.0
+    for v in (x * scale, y * scale):
+        hi = v * v
+        low = fma(v, v, -hi)
+        total = csum + hi
+        frac2 += (csum - total) + hi
+        csum = total
+        frac1 += low
+    h = math.sqrt(csum - 1.0 + (frac1 + frac2))
+    hi = -h * h
+    low = fma(-h, h, -hi)
+    total = csum + hi
+    frac2 += (csum - total) + hi
+    csum = total
+    frac1 += low
+    h += (csum - 1.0 + (frac1 + frac2)) / (2.0 * h)
+    return h / scale

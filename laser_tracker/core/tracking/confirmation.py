@@ -93,15 +93,17 @@ class Confirmation(Role):
         confirmed now."""
         c = self.config
         # The candidates: not confirmed yet, with the paper's m samples.
-        rows = np.flatnonzero(~hyp.confirmed & (hyp.samples >= c.confirm_samples))
+        rows = (~hyp.confirmed & (hyp.samples >= c.confirm_samples)).nonzero()[0]
         if rows.size:
             candidates, confirmed = hyp.take(rows), hyp.take(hyp.confirmed)
             for rule, switch in RULES:
                 if getattr(c, switch) > 0:
-                    rows = rows[rule(c, candidates, confirmed, frame)]
-                    if not rows.size:
-                        break
-                    candidates = hyp.take(rows)
+                    allowed = rule(c, candidates, confirmed, frame)
+                    if not allowed.all():
+                        rows = rows[allowed]
+                        if not rows.size:
+                            break
+                        candidates = candidates.take(allowed)
             hyp.rows['confirmed'][rows] = True
             self.stats['confirmed'] += int(rows.size)
         return rows

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from laser_tracker.core import jit
 from laser_tracker.core.detections import Detections, People, Segments
-from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.role import Role
 
 log = logging.getLogger('laser_tracker.core.hypotheses')   # the tracker's one log, all roles
@@ -38,7 +38,7 @@ class Scanner:
         self.pose, self.previous, self.previous_stamp = pose, previous, previous_stamp
         x, y, th = pose.tolist() if pose.size == 3 else (0.0, 0.0, 0.0)
         finite = math.isfinite(x) and math.isfinite(y) and math.isfinite(th)
-        self._place = np.array((x, y)) if finite else None
+        self._place = (x, y) if finite else None
         self._cos, self._sin = (math.cos(th), math.sin(th)) if finite else (0.0, 0.0)
 
     def to_scanner(self, xy: np.ndarray) -> np.ndarray:
@@ -46,22 +46,8 @@ class Scanner:
         pose)."""
         if self._place is None:
             return np.full_like(xy, np.nan)
-        c, s = self._cos, self._sin
-        d = xy - self._place
-        out = d * c
-        out[:, 0] += s * d[:, 1]          # c dx + s dy
-        out[:, 1] -= s * d[:, 0]          # -s dx + c dy
-        return out
-
-    @staticmethod
-    def from_scanner(local: np.ndarray, pose) -> np.ndarray:
-        """Scanner-frame points (k, 2) of scanner ``pose`` in the odometry frame."""
-        if pose is None or np.asarray(pose).size != 3:
-            return np.full_like(local, np.nan)
-        x, y, th = (float(v) for v in pose)
-        c, s = math.cos(th), math.sin(th)
-        return np.column_stack((x + c * local[:, 0] - s * local[:, 1],
-                                y + s * local[:, 0] + c * local[:, 1]))
+        x, y = self._place
+        return _into_frame(xy, x, y, self._cos, self._sin)
 
     def motion(self, t: float):
         """(velocity (2,), turn rate, speed) of the scanner over the last frame, or None."""
@@ -125,7 +111,9 @@ class Measurements(Role):
         frame = Frame(float(detections.stamp), scanner, *self._usable_blobs(detections),
                       *_people(detections.people), *_segments(detections.segments))
         if self.config.ride_along_reach > 0:
-            frame.without_blobs(self._riding_with_scanner(frame))
+            riding = self._riding_with_scanner(frame)
+            if riding is not None:
+                frame.without_blobs(riding)
         return frame
 
     def remember(self, frame: Frame) -> None:
@@ -163,8 +151,8 @@ class Measurements(Role):
             self.stats['blobs_dropped'] += int(kept.size - c.max_blobs)
         return xy[ok], _aligned(blobs.structure, ok, n, np.nan)
 
-    def _riding_with_scanner(self, frame: Frame) -> np.ndarray:
-        """Mask: motion blobs within ``ride_along_reach`` of the scanner that kept their place
+    def _riding_with_scanner(self, frame: Frame) -> np.ndarray | None:
+        """Mask (None: none): motion blobs within ``ride_along_reach`` of the scanner that kept their place
         in its frame since the previous frame (a blob of then within half their world
         displacement of the same scanner-frame place) while they moved at least
         ``RIDE_MIN_TRAVEL`` in the world: the robot's own body, before the self-mask has
@@ -175,16 +163,62 @@ class Measurements(Role):
         local = frame.scanner.to_scanner(xy)
         before, pose = self.ride_local, self.previous_pose
         self.ride_local = local
-        out = np.zeros(xy.shape[0], bool)
         if not xy.shape[0] or before.shape[0] == 0 or pose is None:
-            return out
-        near = (local ** 2).sum(axis=1) <= self.config.ride_along_reach ** 2
-        if not near.any():
-            return out
-        in_scanner = pairwise_distances(local[near], before)
-        in_world = pairwise_distances(xy[near], Scanner.from_scanner(before, pose))
-        out[near] = ((in_world >= RIDE_MIN_TRAVEL) & (in_scanner < 0.5 * in_world)).any(axis=1)
-        return out
+            return None
+        x, y, th = pose.tolist() if pose.size == 3 else (math.nan,) * 3
+        return _kept_place(xy, local, before, x, y, math.cos(th), math.sin(th),
+                           self.config.ride_along_reach ** 2, RIDE_MIN_TRAVEL)
+
+
+_NONE = np.zeros(0)
+
+
+@jit.kernel
+def _all_finite(xy, values):
+    """Every value of ``xy`` (k, 2) and ``values`` is finite."""
+    for i in range(xy.shape[0]):
+        if not (math.isfinite(xy[i, 0]) and math.isfinite(xy[i, 1])):
+            return False
+    for i in range(values.size):
+        if not math.isfinite(values[i]):
+            return False
+    return True
+
+
+@jit.kernel
+def _into_frame(xy, x, y, c, s):
+    """The points ``xy`` (k, 2) in the frame at ``x, y`` whose heading has cosine ``c`` and
+    sine ``s``: ``(c dx + s dy, c dy - s dx)``."""
+    out = np.empty((xy.shape[0], 2))
+    for i in range(xy.shape[0]):
+        dx, dy = xy[i, 0] - x, xy[i, 1] - y
+        out[i, 0] = dx * c + s * dy
+        out[i, 1] = dy * c - s * dx
+    return out
+
+
+@jit.kernel
+def _kept_place(xy, local, before, x, y, c, s, reach2, min_travel):
+    """Mask over the points ``xy`` (odometry frame; ``local`` in the scanner's frame) within
+    ``sqrt(reach2)`` of the scanner: a point ``before`` (the previous scanner frame, whose
+    pose is ``x, y`` and heading cosine and sine ``c, s``) within half their world distance
+    of the same scanner-frame place, while that distance is at least ``min_travel``; None
+    for none."""
+    out = np.zeros(xy.shape[0], np.bool_)
+    for i in range(xy.shape[0]):
+        if local[i, 0] * local[i, 0] + local[i, 1] * local[i, 1] > reach2:
+            continue
+        for j in range(before.shape[0]):
+            bx, by = before[j, 0], before[j, 1]
+            dx, dy = local[i, 0] - bx, local[i, 1] - by
+            in_scanner = np.sqrt(dx * dx + dy * dy)
+            dx = xy[i, 0] - ((x + c * bx) - s * by)
+            dy = xy[i, 1] - ((y + s * bx) + c * by)
+            in_world = np.sqrt(dx * dx + dy * dy)
+            if in_world >= min_travel and in_scanner < 0.5 * in_world:
+                out[i] = True
+                break
+    return out if out.any() else None
 
 
 def _people(people: People) -> tuple[np.ndarray, ...]:
@@ -216,8 +250,8 @@ def _finite_rows(xy: np.ndarray, values) -> tuple[np.ndarray, np.ndarray | None]
     when it has one per point: the points and the mask (None: all)."""
     values = np.asarray(values, dtype=float).reshape(-1)
     aligned = values.shape[0] == xy.shape[0]
-    if math.isfinite(xy.sum() + (values.sum() if aligned else 0.0)):
-        return xy, None                       # (a finite sum: every value is finite)
+    if _all_finite(xy, values if aligned else _NONE):
+        return xy, None
     ok = np.isfinite(xy).all(axis=1)
     if aligned:
         ok &= np.isfinite(values)

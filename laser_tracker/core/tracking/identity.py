@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from laser_tracker.core import jit
+from laser_tracker.core.blobs import _root
 from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import MOTION, PERSON, Hypotheses
@@ -64,45 +66,24 @@ class Identity(Role):
     def merge(self, hyp: Hypotheses) -> Hypotheses:
         """The hypotheses with each group of duplicates collapsed into one."""
         c = self.config
-        k = len(hyp)
-        if k < 2 or c.merge_distance <= 0:
+        if len(hyp) < 2 or c.merge_distance <= 0:
             return hyp
-        close = _squared_distances(hyp.position) <= c.merge_distance ** 2
-        if np.count_nonzero(close) == k:          # only the diagonal: nothing to merge
-            return hyp
-        close &= _squared_distances(hyp.velocity) <= c.merge_speed ** 2
-        if np.count_nonzero(close) == k:
-            return hyp
-        a, b = np.nonzero(close)
-        pair = a < b
-        group = _components(k, a[pair], b[pair])
         rows = hyp.rows
-        # State: the best-supported member (supported now, then weight, then samples).
-        keep = _first_of_group(group, np.lexsort((-rows['samples'], -rows['weight'],
-                                                  ~rows['supported'])))
-        # Identity: the oldest confirmed member, else the oldest member (smallest id).
-        ident_key = np.lexsort((rows['track_id'], ~rows['confirmed']))
-        irank = np.empty(k, np.intp)
-        irank[ident_key] = np.arange(k)
-        ibest = np.full(k, k, np.intp)
-        np.minimum.at(ibest, group, irank)
-        donor = ident_key[ibest[group]]          # row whose identity each row's group keeps
-        samples = np.zeros(k, np.int64)
-        np.maximum.at(samples, group, rows['samples'])
-        # A group with any member not started by a person standing where something always
-        # stood carries no such restriction.
-        open_ = np.zeros(k, bool)
-        np.logical_or.at(open_, group, rows['origin'] != PERSON)
-        kept = np.flatnonzero(keep)
+        groups = _duplicates(rows['position'], rows['state'], rows['supported'],
+                             rows['weight'], rows['samples'], rows['track_id'],
+                             rows['confirmed'], rows['origin'], c.merge_distance ** 2,
+                             c.merge_speed ** 2)
+        if groups is None:
+            return hyp
+        kept, src, samples, origin = groups
         out = hyp.take(kept)
-        src = donor[kept]
         merged = out.rows
         for name in ('track_id', 'born', 'start', 'start_local'):
             merged[name] = rows[name][src]
         merged['confirmed'] |= rows['confirmed'][src]
-        merged['samples'] = samples[group[kept]]
-        merged['origin'] = np.where(open_[group[kept]], MOTION, PERSON)
-        self.stats['merged'] += int(k - kept.size)
+        merged['samples'] = samples
+        merged['origin'] = origin
+        self.stats['merged'] += len(hyp) - kept.size
         return out
 
     def remember_lost(self, gone: Hypotheses, t: float) -> None:
@@ -147,35 +128,70 @@ class Identity(Role):
         self.lost = lost[~taken]
 
 
-def _squared_distances(xy: np.ndarray) -> np.ndarray:
-    """(k, k) squared distances between the rows of ``xy`` (k, 2)."""
-    x, y = xy[:, 0], xy[:, 1]
-    dx, dy = x[:, None] - x[None, :], y[:, None] - y[None, :]
-    dx *= dx
-    dy *= dy
-    dx += dy
-    return dx
+@jit.kernel
+def _duplicates(position, state, supported, weight, samples, track_id, confirmed, origin,
+                near2, alike2):
+    """The groups of duplicates (chains of hypotheses within ``sqrt(near2)`` of each other
+    whose velocities, ``state[:, 2:]``, differ by at most ``sqrt(alike2)``), or None when
+    there is nothing to merge. Per group: the row kept (its best-supported member: supported
+    now, then weight, then samples, then the first), the row whose identity it takes (its
+    oldest confirmed member, else its oldest: smallest id), the most samples of a member,
+    and its origin (``MOTION`` unless every member was started by a person standing where
+    something always stood)."""
+    k = position.shape[0]
+    root = np.arange(k)
+    close = 0
+    alike = 0
+    for a in range(k):
+        for b in range(k):
+            dx, dy = position[a, 0] - position[b, 0], position[a, 1] - position[b, 1]
+            if dx * dx + dy * dy <= near2:
+                close += 1
+                vx, vy = state[a, 2] - state[b, 2], state[a, 3] - state[b, 3]
+                if vx * vx + vy * vy <= alike2:
+                    alike += 1
+                    if a < b:                    # join the groups: the smallest row is root
+                        ra, rb = _root(root, a), _root(root, b)
+                        root[max(ra, rb)] = min(ra, rb)
+    if close == k or alike == k:                 # only the diagonal: nothing to merge
+        return None
+    best = np.full(k, -1)
+    donor = np.full(k, -1)
+    most = np.zeros(k, np.int64)
+    open_ = np.zeros(k, np.bool_)
+    for i in range(k):
+        g = _root(root, i)
+        j = best[g]
+        if j < 0 or _better_state(i, j, supported, weight, samples):
+            best[g] = i
+        j = donor[g]
+        if j < 0 or (confirmed[i] and not confirmed[j]) or (
+                confirmed[i] == confirmed[j] and track_id[i] < track_id[j]):
+            donor[g] = i
+        most[g] = max(most[g], samples[i])
+        open_[g] |= origin[i] != PERSON
+    n = 0
+    for i in range(k):
+        n += best[_root(root, i)] == i
+    kept, src = np.empty(n, np.intp), np.empty(n, np.intp)
+    kept_samples, kept_origin = np.empty(n, np.int64), np.empty(n, np.int8)
+    n = 0
+    for i in range(k):
+        g = _root(root, i)
+        if best[g] == i:
+            kept[n], src[n], kept_samples[n] = i, donor[g], most[g]
+            kept_origin[n] = MOTION if open_[g] else PERSON
+            n += 1
+    return kept, src, kept_samples, kept_origin
 
 
-def _first_of_group(group: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """Mask: the first member of each group (labels ``group``) in ``order``."""
-    k = group.size
-    rank = np.empty(k, np.intp)
-    rank[order] = np.arange(k)
-    best = np.full(k, k, np.intp)
-    np.minimum.at(best, group, rank)
-    return rank == best[group]
-
-
-def _components(k: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Connected components (label = smallest member index) of k nodes with edges a-b."""
-    label = np.arange(k)
-    while True:
-        m = np.minimum(label[a], label[b])
-        new = label.copy()
-        np.minimum.at(new, a, m)
-        np.minimum.at(new, b, m)
-        new = new[new]
-        if not np.count_nonzero(new != label):
-            return label
-        label = new
+@jit.inline
+def _better_state(i, j, supported, weight, samples):
+    """Row ``i`` (after ``j``) has the better state: supported now, then the higher weight
+    (NaN last), then more samples."""
+    if supported[i] != supported[j]:
+        return supported[i]
+    wi, wj = weight[i], weight[j]
+    if wi != wj and not (wi != wi and wj != wj):
+        return wj != wj or wi > wj
+    return samples[i] > samples[j]

@@ -20,6 +20,7 @@ from collections import deque
 
 import numpy as np
 
+from laser_tracker.core import jit
 from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.association import wall_penalty
 from laser_tracker.core.tracking.frame import Frame
@@ -69,20 +70,16 @@ class Initiation(Role):
                 break
             if earlier.shape[0] == 0:
                 continue
-            idx = np.flatnonzero(todo)
-            disp = pairwise_distances(new_xy[idx], earlier)
-            pair = (disp <= c.max_speed * dt) & (disp >= c.min_displacement)
-            ni, pi = np.nonzero(pair)
+            ni, pi, disp = _pairs(new_xy, todo, earlier, c.max_speed * dt, c.min_displacement)
             if ni.size:
-                pairs.append((new_xy[idx[ni]], earlier[pi], np.full(ni.size, dt),
-                              structure[idx[ni]],
-                              np.column_stack((disp[ni, pi], -weight[idx[ni]]))))
-                todo[idx[ni]] = False
+                pairs.append((new_xy[ni], earlier[pi], np.full(ni.size, dt), structure[ni], disp,
+                              weight[ni]))
         if not pairs:
             return Hypotheses.empty(self.filter.dim)
-        now, then, dt, structure, key = (np.concatenate(p) for p in zip(*pairs))
+        now, then, dt, structure, disp, weight = pairs[0] if len(pairs) == 1 else \
+            (np.concatenate(p) for p in zip(*pairs))
         if now.shape[0] > c.max_hypotheses:    # a burst: the pairs of the strongest blobs
-            keep = np.lexsort((key[:, 0], key[:, 1]))[:c.max_hypotheses]
+            keep = np.lexsort((disp, -weight))[:c.max_hypotheses]
             now, then, dt, structure = now[keep], then[keep], dt[keep], structure[keep]
         return self._create(frame, now, then, dt, structure)
 
@@ -129,3 +126,29 @@ class Initiation(Role):
         out.spread = np.nan
         self.stats['created'] += n
         return out
+
+
+@jit.kernel
+def _pairs(new, todo, earlier, reach, least):
+    """The pairs (``new`` blob, ``earlier`` blob, their distance) within ``reach`` and at
+    least ``least`` apart, of the new blobs still ``todo`` (row-major); the paired ones are
+    done (``todo`` updated)."""
+    n = 0
+    ni, pi, dist = np.empty(0, np.intp), np.empty(0, np.intp), np.empty(0)
+    for sweep in range(2):                   # count, then fill
+        n = 0
+        for i in range(new.shape[0]):
+            if not todo[i]:
+                continue
+            for j in range(earlier.shape[0]):
+                dx, dy = new[i, 0] - earlier[j, 0], new[i, 1] - earlier[j, 1]
+                d = np.sqrt(dx * dx + dy * dy)
+                if d <= reach and d >= least:
+                    if sweep:
+                        ni[n], pi[n], dist[n] = i, j, d
+                    n += 1
+        if not sweep:
+            ni, pi, dist = np.empty(n, np.intp), np.empty(n, np.intp), np.empty(n)
+    for m in range(n):
+        todo[ni[m]] = False
+    return ni, pi, dist

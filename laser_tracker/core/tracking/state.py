@@ -56,14 +56,17 @@ class Hypotheses:
     records field by field are several times slower).
     """
 
-    __slots__ = ('rows',)
+    __slots__ = ('rows', '_opaque_rows')
 
-    def __init__(self, rows: np.ndarray):
+    def __init__(self, rows: np.ndarray, opaque: np.ndarray | None = None):
         self.rows = rows
+        self._opaque_rows = opaque        # the same records as opaque items, once needed
 
     @classmethod
     def empty(cls, dim: int, n: int = 0) -> Hypotheses:
-        return cls(np.zeros(n, hypothesis_dtype(dim)))
+        """``n`` hypotheses, zero in every field (none: one shared empty set, as nothing can
+        be written into it)."""
+        return cls(np.zeros(n, hypothesis_dtype(dim))) if n else _none(dim)
 
     def __len__(self) -> int:
         return int(self.rows.shape[0])
@@ -74,18 +77,23 @@ class Hypotheses:
 
     def take(self, index) -> Hypotheses:
         """The hypotheses at ``index`` (a mask or indices), as a copy."""
-        rows = self.rows
-        return Hypotheses(_raw(rows)[index].view(rows.dtype))
+        return _records(self.opaque()[index], self.rows.dtype)
 
     @staticmethod
     def concat(parts: list[Hypotheses], dim: int) -> Hypotheses:
-        parts = [p for p in parts if len(p)]
+        parts = [p for p in parts if p.rows.shape[0]]
         if not parts:
             return Hypotheses.empty(dim)
         if len(parts) == 1:
             return parts[0]
-        return Hypotheses(np.concatenate([_raw(p.rows) for p in parts])
-                          .view(parts[0].rows.dtype))
+        return _records(np.concatenate([p.opaque() for p in parts]), parts[0].rows.dtype)
+
+    def opaque(self) -> np.ndarray:
+        """The records as raw bytes (one opaque item each), a view."""
+        if self._opaque_rows is None:
+            rows = self.rows
+            self._opaque_rows = rows.view(_opaque(rows.dtype.itemsize))
+        return self._opaque_rows
 
     @property
     def velocity(self) -> np.ndarray:
@@ -97,9 +105,16 @@ class Hypotheses:
         return self.rows['person_samples'] >= kind_samples
 
 
-def _raw(rows: np.ndarray) -> np.ndarray:
-    """The records as raw bytes (one opaque item each)."""
-    return rows.view(_opaque(rows.dtype.itemsize))
+def _records(opaque: np.ndarray, dtype: np.dtype) -> Hypotheses:
+    """The hypotheses of raw records (a new contiguous array of opaque items) of ``dtype``
+    (``frombuffer``: a view without ``view``'s check of the fields, which costs more than
+    the copy)."""
+    return Hypotheses(np.frombuffer(opaque, dtype), opaque)
+
+
+@functools.cache
+def _none(dim: int) -> Hypotheses:
+    return Hypotheses(np.zeros(0, hypothesis_dtype(dim)))
 
 
 @functools.cache

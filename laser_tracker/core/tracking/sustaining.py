@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from laser_tracker.core.geometry import pairwise_distances
+from laser_tracker.core import jit
 from laser_tracker.core.tracking.frame import Frame
 from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import Hypotheses
@@ -28,7 +28,7 @@ class Sustaining(Role):
     def sustain(self, hyp: Hypotheses, pred: np.ndarray, frame: Frame,
                 unsupported: np.ndarray) -> list[Hypotheses]:
         """The ``unsupported`` hypotheses: those held by a segment, then those coasting."""
-        rest = np.flatnonzero(unsupported)
+        rest = unsupported.nonzero()[0]
         if not rest.size:
             return []
         segment = self.segment_of(hyp, rest, pred[rest], frame)
@@ -43,19 +43,11 @@ class Sustaining(Role):
         """Per row of ``rows``: the index of the segment that holds it, -1 for none (only
         confirmed hypotheses; a person's only by a leg-like segment)."""
         c = self.config
-        segments = frame.segments
-        out = np.full(rows.size, -1, np.intp)
-        if c.segment_gate <= 0 or segments.shape[0] == 0:
-            return out
-        person = hyp.is_person(c.person_kind_samples)[rows]
-        anchor = np.where(person[:, None], pred, hyp.position[rows])
-        d = pairwise_distances(anchor, segments)
-        d[person[:, None] & (frame.leg[None, :] < c.segment_min_leg)] = np.inf
-        near = d.argmin(axis=1)
-        gate = np.where(person, c.segment_gate, min(c.segment_gate, c.stop_radius))
-        ok = (d[np.arange(rows.size), near] <= gate) & hyp.confirmed[rows]
-        out[ok] = near[ok]
-        return out
+        if c.segment_gate <= 0 or frame.segments.shape[0] == 0:
+            return np.full(rows.size, -1, np.intp)
+        return _holding_segments(rows, pred, hyp.position, hyp.person_samples, hyp.confirmed,
+                                 frame.segments, frame.leg, c.person_kind_samples,
+                                 c.segment_min_leg, c.segment_gate, c.stop_radius)
 
     def hold(self, hyp: Hypotheses, at: np.ndarray, t: float) -> Hypotheses:
         """Support by the segments ``at`` (k, 2): standing within ``stop_radius``, else
@@ -63,18 +55,7 @@ class Sustaining(Role):
         if not len(hyp):
             return hyp
         still = np.hypot(*(at - hyp.position).T) <= self.config.stop_radius
-        if still.any():
-            rows = np.flatnonzero(still)
-            state, P = self.filter.hold(hyp.state[rows], hyp.P[rows], at[rows])
-            hyp.rows['state'][rows], hyp.rows['P'][rows] = state, P
-            hyp.rows['position'][rows] = at[rows]
-        if not still.all():
-            rows = np.flatnonzero(~still)
-            state, P, position = self.filter.correct(hyp.state[rows], hyp.P[rows],
-                                                     hyp.t_state[rows], at[rows], t)
-            hyp.rows['state'][rows], hyp.rows['P'][rows] = state, P
-            hyp.rows['position'][rows] = position
-        hyp.t_state = t
+        self.filter.support(hyp, at, t, still)
         hyp.supported = False
         hyp.stopped = still
         return hyp
@@ -91,3 +72,30 @@ class Sustaining(Role):
         hyp.weight = np.maximum(hyp.weight - c.coast_rate * charged, 0.0)
         hyp.supported, hyp.stopped = False, False
         return hyp
+
+
+@jit.kernel
+def _holding_segments(rows, pred, position, person_samples, confirmed, segments, leg,
+                      kind_samples, min_leg, gate, stop_radius):
+    """Per hypothesis of ``rows`` (predicted at ``pred``): the nearest segment within reach
+    (a person's: of its prediction, within ``gate``, leg-like; another object's: of its
+    position, within ``min(gate, stop_radius)``), -1 for none or when not confirmed."""
+    out = np.full(rows.size, -1, np.intp)
+    for m in range(rows.size):
+        h = rows[m]
+        person = person_samples[h] >= kind_samples
+        ax, ay = (pred[m, 0], pred[m, 1]) if person else (position[h, 0], position[h, 1])
+        near = -1
+        best = np.inf
+        for j in range(segments.shape[0]):
+            if person and leg[j] < min_leg:
+                d = np.inf
+            else:
+                dx, dy = ax - segments[j, 0], ay - segments[j, 1]
+                d = np.sqrt(dx * dx + dy * dy)
+            if near < 0 or (best == best and (d < best or d != d)):   # argmin: first NaN
+                near, best = j, d
+        reach = gate if person else min(gate, stop_radius)
+        if best <= reach and confirmed[h]:
+            out[m] = near
+    return out
