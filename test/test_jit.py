@@ -267,3 +267,25 @@ def test_icp_sums_add_as_the_numpy_formulation():
         m = t.T @ ((a * w[:, None]).T @ a) @ t
         h, g0, g1, g2 = icp._normal_equations(a, n, w, c, s, x, y)
         assert np.array_equal(h, m[:3, :3]) and (g0, g1, g2) == tuple(m[:3, 3])
+
+
+def test_a_ctrl_c_inside_numbas_callbacks_is_raised_after_the_warm_up():
+    """SIGINT while LLVM calls back into llvmlite's Python code (numba loading a kernel) would
+    be printed and dropped by ctypes: the CLI's handler keeps it back, and it is raised when
+    the warm-up returns; anywhere else it is raised at once."""
+    from types import SimpleNamespace
+
+    from laser_tracker.tools.cli import _interrupt
+
+    def frame(path):
+        return SimpleNamespace(f_code=SimpleNamespace(co_filename=path))
+
+    callback = frame('/venv/lib/python3.11/site-packages/llvmlite/binding/executionengine.py')
+    _interrupt(2, callback)                                  # kept back, nothing raised
+    with pytest.raises(KeyboardInterrupt):
+        jit.compiled('a warm-up during which Ctrl-C came', lambda: None)
+    jit.raise_deferred_interrupt()                           # raised once only
+    with pytest.raises(KeyboardInterrupt):
+        _interrupt(2, frame('/work/laser_tracker/tools/replay.py'))
+    with pytest.raises(KeyboardInterrupt):
+        _interrupt(2, None)

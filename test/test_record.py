@@ -622,3 +622,24 @@ def test_a_real_run_is_recorded_in_at_most_three_times_its_input(tmp_path):
               for i, c in summary.channels.items()}
     assert counts['/scan'] == counts['/ego_motion'] == counts['/tracks/markers'] == 7170
     assert counts['/grid'] == math.ceil(7170 / DEFAULT_GRID_EVERY)
+
+
+@pytest.mark.parametrize('delay', [0.6, 0.9, 1.2, 1.5])
+def test_ctrl_c_while_a_replay_starts_stops_it_with_one_line(tmp_path, delay):
+    """Ctrl-C at any moment of the start (imports, the compiled kernels loading, where LLVM
+    calls back into Python and a KeyboardInterrupt would be dropped) stops the replay with
+    one line and no traceback."""
+    import os
+    import signal
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, '-m', 'laser_tracker.tools.cli', 'replay',
+                             'crossing_walkers', '--out', str(tmp_path / 'o'), '--no-progress'],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    time.sleep(delay)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0 and 'Traceback' not in err and 'Exception ignored' not in err, err
+    assert 'interrupted' in err

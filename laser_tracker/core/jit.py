@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -136,6 +137,29 @@ def inline(function: Callable) -> Callable:
                       inline='always')(function)
 
 
+#: Set when a Ctrl-C arrived while numba's compiler was calling back into Python (see
+#: :func:`defer_interrupt`).
+_interrupt_pending = threading.Event()
+
+
+def defer_interrupt(frame) -> bool:
+    """For a SIGINT handler: True (and the interrupt remembered) when the signal arrived in
+    llvmlite's Python code, which LLVM calls back while numba loads or compiles a kernel.
+    A KeyboardInterrupt raised there is printed and dropped by ctypes, and the program would
+    run on; :func:`raise_deferred_interrupt` raises it later, in plain Python."""
+    if frame is None or '/llvmlite/' not in frame.f_code.co_filename.replace('\\', '/'):
+        return False
+    _interrupt_pending.set()
+    return True
+
+
+def raise_deferred_interrupt() -> None:
+    """Raise the KeyboardInterrupt :func:`defer_interrupt` kept back, if any."""
+    if _interrupt_pending.is_set():
+        _interrupt_pending.clear()
+        raise KeyboardInterrupt
+
+
 def compiled(what: str, call: Callable[[], object]) -> None:
     """Run ``call`` (a first kernel call with a small valid input), once per process and
     ``what``: compiles, or loads from the cache, before the first real input. Raises
@@ -151,6 +175,7 @@ def compiled(what: str, call: Callable[[], object]) -> None:
     done.add(what)
     try:
         call()
+        raise_deferred_interrupt()
     except Exception as exc:  # noqa: BLE001 - whatever numba or LLVM raised
         done.discard(what)
         if isinstance(exc, CompileError):

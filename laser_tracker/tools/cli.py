@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
+from laser_tracker.core import jit
 from laser_tracker.errors import LaserTrackerError
 
 # name -> (module, one-line help)
@@ -49,11 +51,12 @@ def main(argv: list[str] | None = None) -> int:
         top.parse_args(argv)  # prints help or a clear error and exits
     name = argv[0]
     module_name, help_text = COMMANDS[name]
-    module = importlib.import_module(module_name)
-    parser = argparse.ArgumentParser(prog=f'laser-tracker {name}', description=help_text)
-    module.add_arguments(parser)
-    args = parser.parse_args(argv[1:])
+    signal.signal(signal.SIGINT, _interrupt)
     try:
+        module = importlib.import_module(module_name)
+        parser = argparse.ArgumentParser(prog=f'laser-tracker {name}', description=help_text)
+        module.add_arguments(parser)
+        args = parser.parse_args(argv[1:])
         return int(module.run(args) or 0)
     except LaserTrackerError as exc:
         print(f'laser-tracker {name}: error: {" ".join(str(exc).split())}', file=sys.stderr)
@@ -65,6 +68,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f'laser-tracker {name}: interrupted', file=sys.stderr)
         return 130
+
+
+def _interrupt(signum, frame) -> None:
+    """Ctrl-C: KeyboardInterrupt, unless numba's compiler is calling back into Python (it
+    would be dropped there); then a moment later (``jit.defer_interrupt``)."""
+    if not jit.defer_interrupt(frame):
+        raise KeyboardInterrupt
 
 
 if __name__ == '__main__':

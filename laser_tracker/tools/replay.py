@@ -49,6 +49,7 @@ import numpy as np
 
 from laser_tracker import parameters
 from laser_tracker.conversions import odometry_from_msg, scan_from_msg
+from laser_tracker.core import jit
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError
@@ -332,6 +333,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                     process(pipeline.add_odometry(odo.stamp, odo.pose, arrival))
                     continue
                 scan_index += 1
+                jit.raise_deferred_interrupt()     # a Ctrl-C numba's compiler held back
                 bar.update(1)
                 process(pipeline.poll(arrival))
                 try:
