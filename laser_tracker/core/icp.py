@@ -443,6 +443,31 @@ def _tie(qx, qy, d, rows, tree):
     return k, (idx, table, splits, box, heap_prio, heap_info, points)
 
 
+@jit.inline
+def _associate(a, matched, n, rows, k, px, py):
+    """Association row ``n``: the scan point (px, py) with map point ``k`` (a row of
+    ``rows``): u = n.p, v = n x p, nx, ny, n.q."""
+    nx, ny, nq = rows[k, _NX], rows[k, _NY], rows[k, _NQ]
+    a[n, 0] = nx * px + ny * py
+    a[n, 1] = nx * -py + ny * px
+    a[n, 2], a[n, 3], a[n, 4] = nx, ny, nq
+    matched[n, 0], matched[n, 1] = px, py
+
+
+@jit.kernel
+def _untie(a, matched, tied, n_tied, c, s, x, y, d, rows, tree):
+    """Association rows ``tied[:n_tied]`` (their nearest map point is tied) with the
+    point cKDTree answers, the query placed as :func:`_align` placed it; returns the tree
+    (:func:`_tie`)."""
+    for t in range(n_tied):
+        n = tied[t]
+        px, py = matched[n, 0], matched[n, 1]
+        qx, qy = fma(py, -s, px * c) + x, fma(py, c, px * s) + y
+        k, tree = _tie(qx, qy, d, rows, tree)
+        _associate(a, matched, n, rows, k, px, py)
+    return tree
+
+
 @jit.kernel
 def _nearest_all(queries, d, rows, grid_rows, order, start, grid):
     out = np.full(queries.shape[0], -1, np.int64)
@@ -547,6 +572,7 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, st
     r = np.empty(m)
     w = np.empty(m)
     tree = _no_tree()
+    tied = np.empty(m, np.int64)      # association rows whose nearest map point is tied
     n_in = 0
     iterations = 0
     last0 = last1 = last2 = 0.0
@@ -557,22 +583,20 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, st
         d = schedule[level]
         c, s = math.cos(th), math.sin(th)
         step = stride if level < n_coarse else 1
-        n_in = 0
+        n_in = n_tied = 0
         for i in range(0, m, step):
             px, py = source[i, 0], source[i, 1]
             qx, qy = fma(py, -s, px * c) + x, fma(py, c, px * s) + y
-            j, tied = _nearest(qx, qy, d, grid_rows, start, grid)
+            j, tie = _nearest(qx, qy, d, grid_rows, start, grid)
             if j < 0:
                 continue
-            k = order[j]
-            if tied:                      # as the KD-tree breaks the tie
-                k, tree = _tie(qx, qy, d, rows, tree)
-            nx, ny, nq = rows[k, _NX], rows[k, _NY], rows[k, _NQ]
-            a[n_in, 0] = nx * px + ny * py
-            a[n_in, 1] = nx * -py + ny * px
-            a[n_in, 2], a[n_in, 3], a[n_in, 4] = nx, ny, nq
-            matched[n_in, 0], matched[n_in, 1] = px, py
+            if tie:                       # the KD-tree breaks the tie (below)
+                tied[n_tied] = n_in
+                n_tied += 1
+            _associate(a, matched, n_in, rows, order[j], px, py)
             n_in += 1
+        if n_tied:    # apart from the loop: the tree there costs every query time
+            tree = _untie(a, matched, tied, n_tied, c, s, x, y, d, rows, tree)
         if n_in < 3:
             break
         inv_k2 = 1.0 / (kernel_ratio * d) ** 2
