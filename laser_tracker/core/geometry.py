@@ -28,16 +28,16 @@ def rotation(theta: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def _floats(p):
-    """A 1-D float64 array's items as Python floats (the same values, faster arithmetic);
-    anything else as it is."""
+def plain_floats(p):
+    """A 1-D float64 array's items as Python floats (the same values, and the same results
+    of arithmetic on them, faster than on numpy scalars); anything else as it is."""
     return p.tolist() if type(p) is np.ndarray and p.dtype is _FLOAT64 and p.ndim == 1 else p
 
 
 def compose(a, b) -> np.ndarray:
     """``a (+) b``: pose ``b`` expressed in frame ``a``, brought to a's parent frame."""
-    ax, ay, at = _floats(a)
-    bx, by, bt = _floats(b)
+    ax, ay, at = plain_floats(a)
+    bx, by, bt = plain_floats(b)
     c, s = math.cos(at), math.sin(at)
     return np.array([ax + c * bx - s * by, ay + s * bx + c * by, wrap_scalar(at + bt)])
 
@@ -50,8 +50,8 @@ def inverse(a) -> np.ndarray:
 
 def between(a, b) -> np.ndarray:
     """Relative motion from pose ``a`` to pose ``b``: ``inverse(a) (+) b``."""
-    ax, ay, at = _floats(a)[:3]
-    bx, by, bt = _floats(b)[:3]
+    ax, ay, at = plain_floats(a)[:3]
+    bx, by, bt = plain_floats(b)[:3]
     c, s = math.cos(at), math.sin(at)
     dx, dy = bx - ax, by - ay
     return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_scalar(bt - at)])
