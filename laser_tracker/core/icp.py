@@ -63,15 +63,17 @@ def _normals(points, max_gap, gap_ratio):
     ok = np.zeros(m, dtype=np.bool_)
     if m < 2:
         return normals, ok
-    rng = np.empty(m)
+    # squared ranges (hypot decides only where they leave the link test open: _linked)
+    rng2 = np.empty(m)
     for i in range(m):
-        rng[i] = math.hypot(points[i, 0], points[i, 1])
+        rng2[i] = points[i, 0] * points[i, 0] + points[i, 1] * points[i, 1]
     tx = np.zeros(m)
     ty = np.zeros(m)
     for i in range(m - 1):
         dx = points[i + 1, 0] - points[i, 0]
         dy = points[i + 1, 1] - points[i, 1]
-        if math.hypot(dx, dy) < max_gap + gap_ratio * min(rng[i + 1], rng[i]):
+        if _linked(points, i, dx, dy, math.sqrt(min(rng2[i + 1], rng2[i])), max_gap,
+                   gap_ratio):
             tx[i] += dx       # forward difference where linked
             ty[i] += dy
             tx[i + 1] += dx   # backward difference where linked
@@ -87,6 +89,24 @@ def _normals(points, max_gap, gap_ratio):
             normals[i, 0] = nx
             normals[i, 1] = ny
     return normals, ok
+
+
+@jit.inline
+def _linked(points, i, dx, dy, near, max_gap, gap_ratio):
+    """``hypot(dx, dy) < max_gap + gap_ratio * min(hypot(p[i + 1]), hypot(p[i]))``: the
+    link test of :func:`_normals`. Square roots of the squared lengths (``near``: of the
+    nearer point's range) decide unless they are within a relative 1e-9 of the limit (far
+    above their rounding errors and hypot's), where hypot does: it costs more."""
+    limit = max_gap + gap_ratio * near
+    if max_gap >= 0.0 and 0.0 <= gap_ratio <= 1e6 and 1e-100 < limit < 1e100 and \
+            abs(dx) < 1e100 and abs(dy) < 1e100:        # no overflow, nothing lost below
+        length = math.sqrt(dx * dx + dy * dy)
+        if length < limit * (1.0 - 1e-9):
+            return True
+        if length > limit * (1.0 + 1e-9):
+            return False
+    return math.hypot(dx, dy) < max_gap + gap_ratio * min(
+        math.hypot(points[i + 1, 0], points[i + 1, 1]), math.hypot(points[i, 0], points[i, 1]))
 
 
 @jit.kernel
