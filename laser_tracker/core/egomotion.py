@@ -82,7 +82,7 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core import icp, jit
-from laser_tracker.core.geometry import between, compose, wrap_scalar
+from laser_tracker.core.geometry import between, compose, plain_floats, wrap_scalar
 from laser_tracker.core.scan import Scan, beam_table
 
 log = logging.getLogger(__name__)
@@ -463,8 +463,9 @@ class AdaptiveNoise:
 
     def variance(self, motion) -> tuple[float, float]:
         """``(var_xy, var_theta)`` of a prediction ``motion`` (x, y, theta)."""
-        d2 = float(motion[0] * motion[0] + motion[1] * motion[1])
-        a2 = float(motion[2] * motion[2])
+        m = plain_floats(motion)
+        d2 = float(m[0] * m[0] + m[1] * m[1])
+        a2 = float(m[2] * m[2])
         cx, ct = self.coef
         return (max(cx[0] + cx[1] * d2 + cx[2] * a2, 1e-10),
                 max(ct[0] + ct[1] * d2 + ct[2] * a2, 1e-12))
@@ -477,8 +478,9 @@ class AdaptiveNoise:
     def update(self, motion, error, icp_variance) -> None:
         """One disagreement ``error`` (x, y, theta) of the prediction ``motion`` with an ICP
         motion of variance ``icp_variance`` (x, y, theta)."""
-        _update_noise(float(motion[0]), float(motion[1]), float(motion[2]),
-                      float(error[0]), float(error[1]), float(error[2]),
+        m, e = plain_floats(motion), plain_floats(error)
+        _update_noise(float(m[0]), float(m[1]), float(m[2]), float(e[0]), float(e[1]),
+                      float(e[2]),
                       float(icp_variance[0]), float(icp_variance[1]), float(icp_variance[2]),
                       self._settings, self._gram, self._rhs, self._f2, self._count, self._c0,
                       self._coef)
@@ -807,7 +809,9 @@ def fuse(res: icp.IcpResult, previous, predicted, prior,
     ``previous`` pose. Along degenerate directions the prediction is kept. The algebra is
     one kernel call (:func:`_fuse`)."""
     c = config
-    n_deg = sum(v < c.degeneracy_threshold for v in res.eigenvalues.tolist())
+    lam0, lam1, lam2 = res.eigenvalues.tolist()
+    limit = c.degeneracy_threshold
+    n_deg = (lam0 < limit) + (lam1 < limit) + (lam2 < limit)
     if n_deg == 3:
         return 'degenerate in every direction'
     settings = np.array([c.icp_model_sigma ** 2, c.prior_max_ratio, c.prior_gate,

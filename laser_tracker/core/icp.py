@@ -63,15 +63,17 @@ def _normals(points, max_gap, gap_ratio):
     ok = np.zeros(m, dtype=np.bool_)
     if m < 2:
         return normals, ok
-    rng = np.empty(m)
+    # squared ranges (hypot decides only where they leave the link test open: _linked)
+    rng2 = np.empty(m)
     for i in range(m):
-        rng[i] = math.hypot(points[i, 0], points[i, 1])
+        rng2[i] = points[i, 0] * points[i, 0] + points[i, 1] * points[i, 1]
     tx = np.zeros(m)
     ty = np.zeros(m)
     for i in range(m - 1):
         dx = points[i + 1, 0] - points[i, 0]
         dy = points[i + 1, 1] - points[i, 1]
-        if math.hypot(dx, dy) < max_gap + gap_ratio * min(rng[i + 1], rng[i]):
+        if _linked(points, i, dx, dy, math.sqrt(min(rng2[i + 1], rng2[i])), max_gap,
+                   gap_ratio):
             tx[i] += dx       # forward difference where linked
             ty[i] += dy
             tx[i + 1] += dx   # backward difference where linked
@@ -87,6 +89,24 @@ def _normals(points, max_gap, gap_ratio):
             normals[i, 0] = nx
             normals[i, 1] = ny
     return normals, ok
+
+
+@jit.inline
+def _linked(points, i, dx, dy, near, max_gap, gap_ratio):
+    """``hypot(dx, dy) < max_gap + gap_ratio * min(hypot(p[i + 1]), hypot(p[i]))``: the
+    link test of :func:`_normals`. Square roots of the squared lengths (``near``: of the
+    nearer point's range) decide unless they are within a relative 1e-9 of the limit (far
+    above their rounding errors and hypot's), where hypot does: it costs more."""
+    limit = max_gap + gap_ratio * near
+    if max_gap >= 0.0 and 0.0 <= gap_ratio <= 1e6 and 1e-100 < limit < 1e100 and \
+            abs(dx) < 1e100 and abs(dy) < 1e100:        # no overflow, nothing lost below
+        length = math.sqrt(dx * dx + dy * dy)
+        if length < limit * (1.0 - 1e-9):
+            return True
+        if length > limit * (1.0 + 1e-9):
+            return False
+    return math.hypot(dx, dy) < max_gap + gap_ratio * min(
+        math.hypot(points[i + 1, 0], points[i + 1, 1]), math.hypot(points[i, 0], points[i, 1]))
 
 
 @jit.kernel
@@ -443,6 +463,31 @@ def _tie(qx, qy, d, rows, tree):
     return k, (idx, table, splits, box, heap_prio, heap_info, points)
 
 
+@jit.inline
+def _associate(a, matched, n, rows, k, px, py):
+    """Association row ``n``: the scan point (px, py) with map point ``k`` (a row of
+    ``rows``): u = n.p, v = n x p, nx, ny, n.q."""
+    nx, ny, nq = rows[k, _NX], rows[k, _NY], rows[k, _NQ]
+    a[n, 0] = nx * px + ny * py
+    a[n, 1] = nx * -py + ny * px
+    a[n, 2], a[n, 3], a[n, 4] = nx, ny, nq
+    matched[n, 0], matched[n, 1] = px, py
+
+
+@jit.kernel
+def _untie(a, matched, tied, n_tied, c, s, x, y, d, rows, tree):
+    """Association rows ``tied[:n_tied]`` (their nearest map point is tied) with the
+    point cKDTree answers, the query placed as :func:`_align` placed it; returns the tree
+    (:func:`_tie`)."""
+    for t in range(n_tied):
+        n = tied[t]
+        px, py = matched[n, 0], matched[n, 1]
+        qx, qy = fma(py, -s, px * c) + x, fma(py, c, px * s) + y
+        k, tree = _tie(qx, qy, d, rows, tree)
+        _associate(a, matched, n, rows, k, px, py)
+    return tree
+
+
 @jit.kernel
 def _nearest_all(queries, d, rows, grid_rows, order, start, grid):
     out = np.full(queries.shape[0], -1, np.int64)
@@ -547,6 +592,7 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, st
     r = np.empty(m)
     w = np.empty(m)
     tree = _no_tree()
+    tied = np.empty(m, np.int64)      # association rows whose nearest map point is tied
     n_in = 0
     iterations = 0
     last0 = last1 = last2 = 0.0
@@ -557,22 +603,20 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, st
         d = schedule[level]
         c, s = math.cos(th), math.sin(th)
         step = stride if level < n_coarse else 1
-        n_in = 0
+        n_in = n_tied = 0
         for i in range(0, m, step):
             px, py = source[i, 0], source[i, 1]
             qx, qy = fma(py, -s, px * c) + x, fma(py, c, px * s) + y
-            j, tied = _nearest(qx, qy, d, grid_rows, start, grid)
+            j, tie = _nearest(qx, qy, d, grid_rows, start, grid)
             if j < 0:
                 continue
-            k = order[j]
-            if tied:                      # as the KD-tree breaks the tie
-                k, tree = _tie(qx, qy, d, rows, tree)
-            nx, ny, nq = rows[k, _NX], rows[k, _NY], rows[k, _NQ]
-            a[n_in, 0] = nx * px + ny * py
-            a[n_in, 1] = nx * -py + ny * px
-            a[n_in, 2], a[n_in, 3], a[n_in, 4] = nx, ny, nq
-            matched[n_in, 0], matched[n_in, 1] = px, py
+            if tie:                       # the KD-tree breaks the tie (below)
+                tied[n_tied] = n_in
+                n_tied += 1
+            _associate(a, matched, n_in, rows, order[j], px, py)
             n_in += 1
+        if n_tied:    # apart from the loop: the tree there costs every query time
+            tree = _untie(a, matched, tied, n_tied, c, s, x, y, d, rows, tree)
         if n_in < 3:
             break
         inv_k2 = 1.0 / (kernel_ratio * d) ** 2

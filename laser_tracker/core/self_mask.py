@@ -353,6 +353,21 @@ def _mark_mixed(r, range_min, range_max, increment, width, jump, out):
                     out[k] = True
 
 
+@jit.inline
+def _within(dx, dy, limit):
+    """``math.hypot(dx, dy) <= limit``: the squared length decides unless it is within a
+    relative 1e-9 of the limit's square (far above its rounding error and hypot's), where
+    hypot does; hypot costs more than the rest of a beam."""
+    if 1e-100 < limit < 1e100 and abs(dx) < 1e100 and abs(dy) < 1e100:   # no overflow,
+        d2 = dx * dx + dy * dy                                  # nothing lost below
+        l2 = limit * limit
+        if d2 < l2 * (1.0 - 1e-9):
+            return True
+        if d2 > l2 * (1.0 + 1e-9):
+            return False
+    return math.hypot(dx, dy) <= limit
+
+
 @jit.kernel
 def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel,
            forget_travel, surface_jump, kept, anchor, body, beyond):
@@ -384,8 +399,8 @@ def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel
             px, py = rk * cos[k], rk * sin[k]
             qx, qy = px - x, py - y
             moved[k] = math.hypot(cth * qx + sth * qy - px, -sth * qx + cth * qy - py)
-            if last >= 0 and math.hypot(px - r[last] * cos[last],
-                                        py - r[last] * sin[last]) <= surface_jump:
+            if last >= 0 and _within(px - r[last] * cos[last], py - r[last] * sin[last],
+                                     surface_jump):
                 farthest = max(farthest, rk)
                 last = k
                 continue

@@ -28,7 +28,6 @@ unrelated.
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import re
@@ -614,7 +613,12 @@ def _without(scan: Scan, masked: np.ndarray) -> Scan:
         return scan
     ranges = scan.ranges.copy()
     ranges[masked] = np.nan
-    return dataclasses.replace(scan, ranges=ranges)
+    # a copy of the (validated) scan with its ranges replaced: dataclasses.replace would
+    # validate it again, which costs more than the rest of this function
+    out = object.__new__(Scan)
+    out.__dict__.update(scan.__dict__)
+    out.ranges = ranges
+    return out
 
 
 def _planar(pose) -> tuple[float, float, float] | None:
