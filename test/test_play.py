@@ -214,8 +214,9 @@ def _replayed_tracks(bag: Path, out: Path) -> dict:
                     reason='bags/crossing_walkers not generated')
 def test_play_into_the_node_graph_gives_the_offline_replays_tracks(ros_context, tmp_path):
     """`laser-tracker play BAG --clock` (its own process, in real time) into the nodes with
-    use_sim_time (over DDS): no message lost, every scan's confirmed tracks equal
-    `laser-tracker replay`'s, and the nodes' clock follows the recording."""
+    use_sim_time (over DDS): every scan's confirmed tracks equal `laser-tracker replay`'s,
+    at most a few best-effort odometry samples lost, and the nodes' clock follows the
+    recording."""
     from rclpy.parameter import Parameter
 
     from laser_tracker.tools.bag import topics
@@ -240,10 +241,12 @@ def test_play_into_the_node_graph_gives_the_offline_replays_tracks(ros_context, 
         assert out.startswith('playing crossing_walkers: ') and 'played ' in out, out
         graph.spin_until(lambda: len(graph.tracks) >= len(expected), timeout=10.0)
         assert_tracks_equal(graph.tracks, expected, atol=1e-4)     # tracks.csv: 4 decimals
-        # none lost: the last samples, published as play ends, may still be on their way
+        # The last samples, published as play ends, may still be on their way. Odometry is
+        # best effort (sensor QoS): a few samples may be dropped under load, and must not
+        # change a track (checked above); seen once: 1,765 of 1,785.
         sent = topics(bag)['/odom'][1]
         graph.spin_until(lambda: graph.ego.odom_received >= sent, timeout=10.0)
-        assert graph.ego.odom_received == sent
+        assert sent >= graph.ego.odom_received >= 0.98 * sent
         last_receive = max(int(t) for t in _receive_times(bag))
         clock_ns = graph.ego.get_clock().now().nanoseconds
         assert abs(clock_ns - last_receive) < 0.1e9, (clock_ns, last_receive)
