@@ -260,23 +260,29 @@ class Hokuyo:
         return r, returned
 
 
+#: A range step (m) whose nearer side is an edge that partly blocks the beams beside it.
+EDGE_STEP = 0.3
+
+
 def mixed_shortfall(true_ranges: np.ndarray, increment: float, width: float,
                     fraction: np.ndarray) -> np.ndarray:
     """Per beam, how much short of its true range a beam partly blocked by a nearer edge
     reads: ``fraction`` of the range step, for the beams on the far side of each step of
-    0.3 m or more that lie within ``width`` of the edge at its range (0 elsewhere)."""
+    ``EDGE_STEP`` or more that lie within ``width`` of the edge at its range (0 elsewhere).
+    Written apart from the tracker's mask (``core.self_mask``) so that the simulator tests
+    that rule rather than repeats it."""
     n = true_ranges.size
     out = np.zeros(n)
     finite = np.isfinite(true_ranges)
     for i in np.flatnonzero(finite[:-1] & finite[1:]):
         a, b = true_ranges[i], true_ranges[i + 1]
-        if abs(a - b) < 0.3:
+        if abs(a - b) < EDGE_STEP:
             continue
         near = min(a, b)
         span = int(width / (near * increment))
         far = range(i + 1, min(n, i + 1 + span)) if a < b else range(i, max(-1, i - span), -1)
         for k in far:
-            if finite[k] and true_ranges[k] - near >= 0.3:
+            if finite[k] and true_ranges[k] - near >= EDGE_STEP:
                 out[k] = max(out[k], fraction[k] * (true_ranges[k] - near))
     return out
 
