@@ -251,3 +251,23 @@ def _track_walkers_and_a_stop():
                             static=np.zeros(len(people), bool))
         det.segments = Segments(xy=np.array(legs + [stop]), leg=np.full(len(legs) + 1, 0.5))
         tracker.update(det)
+
+
+def test_a_person_walked_in_only_where_a_beam_went_on_beyond_the_scanners_displacement():
+    """From a scanner that drove 0.4 m, a leg 0.25 m in front of the wall its earlier beam
+    hit has not walked in with ``motion_depth`` 1 (parallax: the beam may have passed beside
+    something there); a leg in open space, 1.7 m in front of the wall, has."""
+    from laser_tracker.core.difference import people_in_odometry
+    from laser_tracker.core.person_detector import PersonDetections
+
+    builder = GridBuilder(CFG, keep=4)
+    history = GridHistory(builder, 3)
+    for k, pose in enumerate((np.zeros(3), np.array([0.4, 0.0, 0.0]))):
+        history.push(builder.build(room_scan(0.1 * k, pose, seed=k), pose))
+    people = PersonDetections.empty(0.1)
+    people.leg_xy = np.array([[2.35, 0.05], [0.8, 0.05]])      # world x 2.75 and 1.2
+    people.xy = people.leg_xy.copy()
+    people.legs = np.array([[0, -1], [1, -1]])
+    walked = {depth: people_in_odometry(people, (0.4, 0.0, 0.0), 0.1, history, None,
+                                        depth)[1].tolist() for depth in (0.0, 1.0)}
+    assert walked == {0.0: [True, True], 1.0: [False, True]}

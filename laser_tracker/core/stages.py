@@ -387,7 +387,8 @@ class Detector:
             people.leg_xy = segments_of(scan, self.segment_config).xy
             leg = np.zeros(people.leg_xy.shape[0])
         xy, free, static, spread, segments = \
-            people_in_odometry(people, pose, float(scan.stamp), self.history, self.background)
+            people_in_odometry(people, pose, float(scan.stamp), self.history, self.background,
+                               self.difference_config.motion_depth)
         if self.person_detector is not None:
             d.people = People(xy=xy, confidence=people.confidence, free=free, spread=spread,
                               static=static)
@@ -596,7 +597,8 @@ def _exercise_detection() -> None:
     one_leaf = LegClassifier(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 2)), 0.0)
     people = PersonDetector(PersonDetectorConfig(), one_leaf).detect(scan)
     people.legs = np.array([[0, -1]])
-    people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background)
+    people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background,
+                       detector.difference_config.motion_depth)
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:
