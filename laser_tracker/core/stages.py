@@ -207,7 +207,7 @@ class EgoMotion:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
         left_out = self.self_mask.left_out(scan)   # the body, learnt or probable; mixed returns
         body = self.self_mask.masked_ranges
-        est = self.estimator.update(_without(scan, left_out))
+        est = self.estimator.update(scan, left_out)
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
         x, y, theta = pose.tolist()
