@@ -609,9 +609,10 @@ def too_fast(motion, dt: float, config: EgoMotionConfig) -> str:
     scan stamps jitter, so the step may take ``speed_check_jitter`` longer."""
     if dt <= 0.0:
         return ''
+    x, y, theta = plain_floats(motion)
     span = dt + config.speed_check_jitter
-    v = math.hypot(motion[0], motion[1]) / span
-    w = abs(motion[2]) / span
+    v = math.hypot(x, y) / span
+    w = abs(theta) / span
     if v > config.max_translation_speed:
         return f'{v:.2f} m/s > {config.max_translation_speed:g} m/s'
     if w > config.max_rotation_speed:
@@ -860,11 +861,11 @@ def implausible(motion, predicted, pose, odometry, dt: float, config: EgoMotionC
     if speed:
         return f'match implies {speed}'
     if odometry is not None:
-        corr = between(predicted, pose)
-        dist = math.hypot(corr[0], corr[1])
-        if dist > c.max_correction_translation or abs(corr[2]) > c.max_correction_rotation:
+        cx, cy, ct = between(predicted, pose).tolist()
+        dist = math.hypot(cx, cy)
+        if dist > c.max_correction_translation or abs(ct) > c.max_correction_rotation:
             return (f'match disagrees with odometry by {dist:.2f} m / '
-                    f'{math.degrees(abs(corr[2])):.1f} deg')
+                    f'{math.degrees(abs(ct)):.1f} deg')
     return ''
 
 

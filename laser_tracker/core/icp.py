@@ -920,10 +920,8 @@ def result(packed: np.ndarray, n_source: int) -> IcpResult:
     """The :class:`IcpResult` of a packed result (``POSE`` ... ``LAST_STEP``; its arrays
     are views of ``packed``)."""
     sum_w, iterations, converged, n_in, rms, scale = packed[SCALARS:SCALARS + 6].tolist()
-    return IcpResult(pose=packed[POSE:POSE + 3],
-                     hessian=packed[HESSIAN:HESSIAN + 9].reshape(3, 3),
-                     sum_weights=sum_w, iterations=int(iterations), converged=bool(converged),
-                     n_source=n_source, n_inliers=int(n_in), rms=rms,
-                     eigenvalues=packed[EIGENVALUES:EIGENVALUES + 3],
-                     eigenvectors=packed[EIGENVECTORS:EIGENVECTORS + 9].reshape(3, 3),
-                     scale=scale, last_step=packed[LAST_STEP:LAST_STEP + 3])
+    return IcpResult(packed[POSE:POSE + 3], packed[HESSIAN:HESSIAN + 9].reshape(3, 3), sum_w,
+                     int(iterations), converged != 0.0, n_source, int(n_in), rms,
+                     packed[EIGENVALUES:EIGENVALUES + 3],
+                     packed[EIGENVECTORS:EIGENVECTORS + 9].reshape(3, 3), scale,
+                     packed[LAST_STEP:LAST_STEP + 3])

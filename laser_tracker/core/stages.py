@@ -229,7 +229,8 @@ class EgoMotion:
         if quality.restarted or not np.isfinite(cov).all():
             self._pose_cov = np.zeros((3, 3)) if quality.restarted else self._pose_cov
         else:
-            c, s = math.cos(pose[2] - motion[2]), math.sin(pose[2] - motion[2])
+            turn = theta - float(motion[2])          # the previous scanner's heading
+            c, s = math.cos(turn), math.sin(turn)
             rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
             self._pose_cov = self._pose_cov + rot @ cov @ rot.T
         return StampedPose(stamp=float(scan.stamp), pose=pose, motion=motion,
