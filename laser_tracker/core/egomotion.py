@@ -609,9 +609,10 @@ def too_fast(motion, dt: float, config: EgoMotionConfig) -> str:
     scan stamps jitter, so the step may take ``speed_check_jitter`` longer."""
     if dt <= 0.0:
         return ''
+    x, y, theta = plain_floats(motion)
     span = dt + config.speed_check_jitter
-    v = math.hypot(motion[0], motion[1]) / span
-    w = abs(motion[2]) / span
+    v = math.hypot(x, y) / span
+    w = abs(theta) / span
     if v > config.max_translation_speed:
         return f'{v:.2f} m/s > {config.max_translation_speed:g} m/s'
     if w > config.max_rotation_speed:
@@ -729,22 +730,44 @@ class ScanMatcher:
             converged_rotation=c.converged_rotation, coarse_stride=c.coarse_stride)
         self.map = icp.LocalMap(c.map_scans, c.normal_max_gap)
         self.key_pose: np.ndarray | None = None
+        #: the checks and the fusion's settings, as :func:`_match_and_fuse` reads them
+        self.checks = np.array([c.min_points, c.min_inlier_ratio, c.max_rms,
+                                c.degeneracy_threshold, c.icp_model_sigma ** 2,
+                                c.prior_max_ratio, c.prior_gate, c.prior_gate ** 2, 2.0])
         icp.warm_up()
+        jit.compiled('ego-motion kernels (match and fusion)', _exercise_match_and_fuse)
 
     def clear(self) -> None:
         self.map.clear()
         self.key_pose = None
 
-    def match(self, scan: Scan, pose0=None) -> tuple[np.ndarray, icp.IcpResult | None]:
+    def match(self, scan: Scan, pose0=None,
+              skip: np.ndarray | None = None) -> tuple[np.ndarray, icp.IcpResult | None]:
         """The scan's valid points (``Scan.valid()`` within ``min_range``/``max_range``, at
-        most ``max_points``) and their ICP result from ``pose0`` (None: not matched, or
-        too few points or map points)."""
+        most ``max_points``, without the beams ``skip`` leaves out) and their ICP result
+        from ``pose0`` (None: not matched, or too few points or map points)."""
         c = self.config
         _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
                                  scan.n_beams)
         return icp.match_scan(scan.ranges, cos, sin, max(scan.range_min, 1e-6),
                               scan.range_max, c.min_range, c.max_range, c.max_points,
-                              c.min_points, self.map, pose0, self.schedule)
+                              c.min_points, self.map, pose0, self.schedule, skip)
+
+    def match_and_fuse(self, scan: Scan, predicted: np.ndarray, previous: np.ndarray,
+                       prior: np.ndarray, skip: np.ndarray | None = None):
+        """Steps 3-4 in one kernel call (:func:`_match_and_fuse`): ``(points, ICP result or
+        None, verdict, packed)``; with verdict ``FUSED`` the fusion is in ``packed``."""
+        c = self.config
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
+                                 scan.n_beams)
+        pts, packed = _match_and_fuse(
+            scan.ranges, icp.NO_SKIP if skip is None else skip, cos, sin,
+            max(scan.range_min, 1e-6), scan.range_max, c.min_range, c.max_range,
+            c.max_points, c.min_points, predicted, self.schedule.distances,
+            self.schedule.settings, *self.map.arrays, previous, prior, self.checks)
+        verdict = int(packed[_VERDICT])
+        res = None if verdict == UNMATCHED else icp.result(packed, pts.shape[0])
+        return pts, res, verdict, packed
 
     def unmatchable(self, n_points: int) -> str:
         """Why a scan of ``n_points`` points is not matched ('' if it is)."""
@@ -755,20 +778,21 @@ class ScanMatcher:
             return f'local map too small ({self.map.n_points} points)'
         return ''
 
-    def refusal(self, res: icp.IcpResult) -> str:
-        """Why the match ``res`` is refused ('' if it is not): overlap, residual, ..."""
+    def refusal(self, res: icp.IcpResult, verdict: int) -> str:
+        """Why the match ``res`` is refused, by its ``verdict`` (:func:`_verdict`)."""
         c = self.config
-        if res.n_inliers < c.min_points:
+        if verdict == FEW_INLIERS:
             return f'only {res.n_inliers} points matched'
-        if res.inlier_ratio < c.min_inlier_ratio:
+        if verdict == LOW_OVERLAP:
             return f'overlap {100 * res.inlier_ratio:.0f} % < {100 * c.min_inlier_ratio:.0f} %'
-        if not math.isfinite(res.rms) or res.rms > c.max_rms:
+        if verdict == HIGH_RESIDUAL:
             return f'residual {res.rms:.3f} m > {c.max_rms:g} m'
-        if not res.converged:
+        if verdict == NOT_CONVERGED:
             return 'did not converge'
-        x, y, theta = res.pose.tolist()
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+        if verdict == NOT_FINITE:
             return 'non-finite result'
+        if verdict == DEGENERATE:
+            return 'degenerate in every direction'
         return ''
 
     def moved_since_key_scan(self, pose) -> bool:
@@ -802,37 +826,31 @@ class Fused:
     covariance: np.ndarray          # of the fused motion: (information + prior)^-1
 
 
-def fuse(res: icp.IcpResult, previous, predicted, prior,
-         config: EgoMotionConfig) -> Fused | str:
-    """The ICP pose fused with the ``predicted`` pose of ``prior`` information (diagonal:
-    odometry or constant velocity), or why it cannot be; the motion is from the
-    ``previous`` pose. Along degenerate directions the prediction is kept. The algebra is
-    one kernel call (:func:`_fuse`)."""
+def fuse(res: icp.IcpResult, packed: np.ndarray, previous, predicted,
+         config: EgoMotionConfig) -> Fused:
+    """The ICP pose fused with the ``predicted`` pose by information (the algebra was done
+    by :func:`_match_and_fuse`, into ``packed``; the motion is from the ``previous`` pose).
+    Along degenerate directions the prediction is kept."""
     c = config
-    lam0, lam1, lam2 = res.eigenvalues.tolist()
-    limit = c.degeneracy_threshold
-    n_deg = (lam0 < limit) + (lam1 < limit) + (lam2 < limit)
-    if n_deg == 3:
-        return 'degenerate in every direction'
-    settings = np.array([c.icp_model_sigma ** 2, c.prior_max_ratio, c.prior_gate,
-                         c.prior_gate ** 2, 2.0])
-    pose, motion, info, lam, cov = _fuse(
-        res.pose, res.hessian, res.sum_weights, n_deg, np.asarray(previous, dtype=float),
-        np.asarray(predicted, dtype=float), np.asarray(prior, dtype=float), settings)
-    if n_deg:
-        # along degenerate directions (scaled coordinates z = delta / sv): the prediction
-        deg = res.eigenvalues < c.degeneracy_threshold
-        sv = np.array([1.0, 1.0, 1.0 / res.scale])
-        z = between(predicted, pose) / sv
-        u = res.eigenvectors[:, ~deg]
-        pose = compose(predicted, sv * (u @ (u.T @ z)))
-        # no ICP information along them
-        v = res.eigenvectors[:, deg]
-        proj = np.eye(3) - v @ v.T
-        s_inv = np.diag(1.0 / sv)
-        info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
-        motion, cov = between(previous, pose), _covariance(info, lam)
-    return Fused(pose, motion, info, lam, n_deg, cov)
+    n_deg = int(packed[_N_DEG])
+    pose = packed[_F_POSE:_F_POSE + 3]
+    info = packed[_F_INFO:_F_INFO + 9].reshape(3, 3)
+    lam = packed[_F_PRIOR:_F_PRIOR + 3]
+    if not n_deg:
+        return Fused(pose, packed[_F_MOTION:_F_MOTION + 3], info, lam, 0,
+                     packed[_F_COV:_F_COV + 9].reshape(3, 3))
+    # along degenerate directions (scaled coordinates z = delta / sv): the prediction
+    deg = res.eigenvalues < c.degeneracy_threshold
+    sv = np.array([1.0, 1.0, 1.0 / res.scale])
+    z = between(predicted, pose) / sv
+    u = res.eigenvectors[:, ~deg]
+    pose = compose(predicted, sv * (u @ (u.T @ z)))
+    # no ICP information along them
+    v = res.eigenvectors[:, deg]
+    proj = np.eye(3) - v @ v.T
+    s_inv = np.diag(1.0 / sv)
+    info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
+    return Fused(pose, between(previous, pose), info, lam, n_deg, _covariance(info, lam))
 
 
 def implausible(motion, predicted, pose, odometry, dt: float, config: EgoMotionConfig) -> str:
@@ -843,11 +861,11 @@ def implausible(motion, predicted, pose, odometry, dt: float, config: EgoMotionC
     if speed:
         return f'match implies {speed}'
     if odometry is not None:
-        corr = between(predicted, pose)
-        dist = math.hypot(corr[0], corr[1])
-        if dist > c.max_correction_translation or abs(corr[2]) > c.max_correction_rotation:
+        cx, cy, ct = between(predicted, pose).tolist()
+        dist = math.hypot(cx, cy)
+        if dist > c.max_correction_translation or abs(ct) > c.max_correction_rotation:
             return (f'match disagrees with odometry by {dist:.2f} m / '
-                    f'{math.degrees(abs(corr[2])):.1f} deg')
+                    f'{math.degrees(abs(ct)):.1f} deg')
     return ''
 
 
@@ -898,6 +916,79 @@ def _fuse(icp_pose, hessian, sum_weights, n_deg, previous, predicted, prior, set
     if n_deg:
         return pose, np.full(3, np.nan), info, lam, np.full((3, 3), np.nan)
     return pose, _between(previous, pose), info, lam, _covariance(info, lam)
+
+
+#: Verdicts of a match (:func:`_verdict`): fused, not matched (too few scan or map
+#: points), and the reasons for refusing it.
+FUSED, UNMATCHED, FEW_INLIERS, LOW_OVERLAP, HIGH_RESIDUAL, NOT_CONVERGED, NOT_FINITE, \
+    DEGENERATE = range(8)
+#: Layout of :func:`_match_and_fuse`'s packed result after the match's (``icp.result``):
+#: the verdict, the degenerate directions, and the fusion (pose, motion, information,
+#: prior used, covariance).
+_VERDICT = icp.RESULT_SIZE
+_N_DEG, _F_POSE, _F_MOTION, _F_INFO, _F_PRIOR, _F_COV, _PACKED = \
+    _VERDICT + 1, _VERDICT + 2, _VERDICT + 5, _VERDICT + 8, _VERDICT + 17, _VERDICT + 20, \
+    _VERDICT + 29
+
+
+@jit.kernel
+def _match_and_fuse(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
+                    max_points, min_points, predicted, schedule, icp_settings, rows,
+                    grid_rows, order, start, grid, previous, prior, checks):
+    """Steps 3-4 for one scan: its points, their ICP match from the ``predicted`` pose, the
+    checks of the match (:func:`_verdict`) and, when it passes them, its fusion with the
+    prediction (information ``prior``; :func:`_fuse`). Returns the points and the packed
+    result (``icp.result``'s layout, then ``_VERDICT`` ... ``_F_COV``; NaN where not
+    computed)."""
+    out = np.full(_PACKED, np.nan)
+    pts, matched = icp._points_and_align(
+        ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range, max_points,
+        min_points, predicted, schedule.shape[0], schedule, icp_settings, rows, grid_rows,
+        order, start, grid, out)
+    verdict, n_deg = _verdict(out, matched, pts.shape[0], checks)
+    out[_VERDICT] = verdict
+    out[_N_DEG] = n_deg
+    if verdict == FUSED:
+        icp_pose = out[icp.POSE:icp.POSE + 3].copy()
+        hessian = out[icp.HESSIAN:icp.HESSIAN + 9].copy().reshape(3, 3)
+        pose, motion, info, lam, cov = _fuse(icp_pose, hessian, out[icp._SUM_W], n_deg,
+                                             previous, predicted, prior, checks[4:])
+        out[_F_POSE:_F_POSE + 3] = pose
+        out[_F_MOTION:_F_MOTION + 3] = motion
+        out[_F_INFO:_F_INFO + 9] = info.ravel()
+        out[_F_PRIOR:_F_PRIOR + 3] = lam
+        out[_F_COV:_F_COV + 9] = cov.ravel()
+    return pts, out
+
+
+@jit.inline
+def _verdict(out, matched, n_source, checks):
+    """``(verdict, degenerate directions)`` of a packed match: refused with too few inliers
+    (``min_points``), too little overlap (``min_inlier_ratio``), too large a residual
+    (``max_rms``), no convergence, a non-finite pose, or degenerate in every direction
+    (``degeneracy_threshold``); else ``FUSED``."""
+    if not matched:
+        return UNMATCHED, 0
+    n_in = out[icp._N_IN]
+    rms = out[icp._RMS]
+    if n_in < checks[0]:
+        return FEW_INLIERS, 0
+    if (n_in / n_source if n_source else 0.0) < checks[1]:
+        return LOW_OVERLAP, 0
+    if not math.isfinite(rms) or rms > checks[2]:
+        return HIGH_RESIDUAL, 0
+    if not out[icp._CONVERGED]:
+        return NOT_CONVERGED, 0
+    if not (math.isfinite(out[icp.POSE]) and math.isfinite(out[icp.POSE + 1])
+            and math.isfinite(out[icp.POSE + 2])):
+        return NOT_FINITE, 0
+    limit = checks[3]
+    n_deg = 0
+    for k in range(3):
+        n_deg += out[icp.EIGENVALUES + k] < limit
+    if n_deg == 3:
+        return DEGENERATE, 3
+    return FUSED, n_deg
 
 
 @jit.kernel
@@ -976,6 +1067,19 @@ def _exercise_kernels() -> None:
                   np.zeros(1), np.full((2, 3), 1e-4), np.full((2, 3), 1e-4))
 
 
+def _exercise_match_and_fuse() -> None:
+    """:func:`_match_and_fuse` compiled (or loaded) for the argument types of real scans."""
+    matcher = ScanMatcher(EgoMotionConfig(min_points=3))
+    _, cos, sin = beam_table(-1.5, 0.075, 41)
+    ranges = 2.0 + 0.1 * np.cos(3.0 * np.arange(41) * 0.075)
+    scan = Scan(stamp=0.0, ranges=ranges, angle_min=-1.5, angle_increment=0.075,
+                range_min=0.0, range_max=10.0)
+    pts, _ = matcher.match(scan)
+    matcher.add_key_scan(np.zeros(3), pts)
+    for skip in (None, np.zeros(41, np.bool_)):
+        matcher.match_and_fuse(scan, np.zeros(3), np.zeros(3), np.ones(3), skip)
+
+
 # -------------------------------------------------------------------------- estimator
 
 
@@ -1011,8 +1115,9 @@ class EgoMotionEstimator:
         self.stats['resets'] += 1
         self._reset_state()
 
-    def update(self, scan: Scan) -> EgoMotionEstimate:
-        """Estimate the motion for ``scan`` (the steps of the module docstring)."""
+    def update(self, scan: Scan, skip: np.ndarray | None = None) -> EgoMotionEstimate:
+        """Estimate the motion for ``scan`` (the steps of the module docstring), without the
+        beams ``skip`` (bool per beam, e.g. the robot's body) leaves out."""
         t = float(scan.stamp)
         if self._stamp is not None and t == self._stamp:
             return self._none(t, 'scan stamp equals the previous one (skipped)')
@@ -1020,7 +1125,7 @@ class EgoMotionEstimator:
             self.reset(f'time went backwards ({self._stamp:.3f} -> {t:.3f} s)')
         odo = self.odometry.scanner_pose(t)
         if self._pose is None:
-            return self._init(t, self.matcher.match(scan)[0], odo)
+            return self._init(t, self.matcher.match(scan, None, skip)[0], odo)
         dt = t - self._stamp
         # 1-2. the prediction: the odometry increment or constant velocity, and its prior
         inc, no_inc = odometry_increment(self._odo, odo, dt, self.config)
@@ -1029,10 +1134,11 @@ class EgoMotionEstimator:
                        f'({no_inc}): constant-velocity prediction')
         pred = self.prior.predict(inc, self._motion, self._dt, dt)
         predicted = compose(self._pose, pred.motion)
-        # 3. the match, from the predicted pose
-        pts, res = self.matcher.match(scan, predicted)
-        # 4-5. the match fused with the prediction, when both pass the checks
-        fused, why = self._fuse(res, pts.shape[0], pred, predicted, dt)
+        # 3-4. the match from the predicted pose, fused with the prediction when it passes
+        # the checks (one kernel call); 5. the fused motion's checks
+        pts, res, verdict, packed = self.matcher.match_and_fuse(
+            scan, predicted, self._pose, pred.information, skip)
+        fused, why = self._fuse(res, verdict, packed, pts.shape[0], pred, predicted, dt)
         if fused is not None:
             out, reseed = self._accepted(t, res, pred, fused, no_inc, pts.shape[0]), False
         else:
@@ -1042,16 +1148,14 @@ class EgoMotionEstimator:
 
     # ------------------------------------------------------------------- internals
 
-    def _fuse(self, res, n_pts, pred, predicted, dt) -> tuple[Fused | None, str]:
+    def _fuse(self, res, verdict, packed, n_pts, pred, predicted,
+              dt) -> tuple[Fused | None, str]:
         """``(fused, '')``, or ``(None, why the match is not used)``."""
-        if res is None:
+        if verdict == UNMATCHED:
             return None, self.matcher.unmatchable(n_pts)
-        why = self.matcher.refusal(res)
-        if why:
-            return None, why
-        fused = fuse(res, self._pose, predicted, pred.information, self.config)
-        if isinstance(fused, str):
-            return None, fused
+        if verdict != FUSED:
+            return None, self.matcher.refusal(res, verdict)
+        fused = fuse(res, packed, self._pose, predicted, self.config)
         why = implausible(fused.motion, predicted, fused.pose, pred.odometry, dt, self.config)
         return (None, why) if why else (fused, '')
 

@@ -657,15 +657,18 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, st
 
 
 @jit.kernel
-def _scan_points(ranges, cos, sin, valid_min, valid_max, min_range, max_range, max_points):
+def _scan_points(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
+                 max_points):
     """End points of the finite beams with ``valid_min <= r < valid_max`` and
-    ``min_range <= r <= max_range``, every ceil(n / max_points)-th of them."""
+    ``min_range <= r <= max_range`` that ``skip`` does not leave out (empty: none is),
+    every ceil(n / max_points)-th of them."""
     n = ranges.shape[0]
     keep = np.empty(n, np.int64)
     m = 0
     for i in range(n):
         r = ranges[i]
-        if math.isfinite(r) and valid_min <= r < valid_max and min_range <= r <= max_range:
+        if math.isfinite(r) and valid_min <= r < valid_max and min_range <= r <= max_range \
+                and not (skip.size and skip[i]):
             keep[m] = i
             m += 1
     stride = -(-m // max_points) if m > max_points else 1
@@ -677,16 +680,34 @@ def _scan_points(ranges, cos, sin, valid_min, valid_max, min_range, max_range, m
     return out
 
 
+#: Layout of a packed match result (one float array: a kernel returns one array, not six;
+#: returning each costs about a microsecond): pose, H, the scalars (sum of weights,
+#: iterations, converged, inliers, rms, scale), eigenvalues, eigenvectors, last step.
+POSE, HESSIAN, SCALARS, EIGENVALUES, EIGENVECTORS, LAST_STEP, RESULT_SIZE = \
+    0, 3, 12, 18, 21, 30, 33
+_SUM_W, _ITERATIONS, _CONVERGED, _N_IN, _RMS, _SCALE = range(SCALARS, SCALARS + 6)
+
+
 @jit.kernel
-def _points_and_align(ranges, cos, sin, valid_min, valid_max, min_range, max_range,
+def _points_and_align(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
                       max_points, min_points, pose0, levels, schedule, settings, rows,
-                      grid_rows, order, start, grid):
-    pts = _scan_points(ranges, cos, sin, valid_min, valid_max, min_range, max_range,
+                      grid_rows, order, start, grid, out):
+    """The scan's points (:func:`_scan_points`) and, with ``levels`` > 0 and at least
+    ``min_points`` of them and in the map, their :func:`_align` result packed into
+    ``out[:RESULT_SIZE]``; returns the points and whether they were matched."""
+    pts = _scan_points(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
                        max_points)
     if pts.shape[0] < min_points or rows.shape[0] < min_points:
         levels = 0
-    return pts, _align(pts, pose0, schedule, levels, settings, rows, grid_rows, order, start,
-                       grid)
+    pose, h, scalars, evals, evecs, last = _align(pts, pose0, schedule, levels, settings,
+                                                  rows, grid_rows, order, start, grid)
+    out[POSE:POSE + 3] = pose
+    out[HESSIAN:HESSIAN + 9] = h.ravel()
+    out[SCALARS:SCALARS + 6] = scalars
+    out[EIGENVALUES:EIGENVALUES + 3] = evals
+    out[EIGENVECTORS:EIGENVECTORS + 9] = evecs.ravel()
+    out[LAST_STEP:LAST_STEP + 3] = last
+    return pts, levels > 0
 
 
 # --------------------------------------------------------------------------- Python API
@@ -842,23 +863,26 @@ def nearest(ref: LocalMap, queries: np.ndarray, distance: float) -> np.ndarray:
 
 def match_scan(ranges: np.ndarray, cos: np.ndarray, sin: np.ndarray, valid_min: float,
                valid_max: float, min_range: float, max_range: float, max_points: int,
-               min_points: int, ref: LocalMap, pose0,
-               schedule: Schedule) -> tuple[np.ndarray, IcpResult | None]:
+               min_points: int, ref: LocalMap, pose0, schedule: Schedule,
+               skip: np.ndarray | None = None) -> tuple[np.ndarray, IcpResult | None]:
     """A scan's points and their match, in one kernel call: the end points (scanner frame)
     of the finite beams with ``valid_min <= r < valid_max`` (the scanner's valid readings)
-    and ``min_range <= r <= max_range``, evenly thinned to at most ``max_points``; and,
-    from ``pose0`` (None: no match wanted), their :func:`align` result when there are at
-    least ``min_points`` of them and in ``ref`` (else None)."""
+    and ``min_range <= r <= max_range``, except those ``skip`` (bool per beam) leaves out,
+    evenly thinned to at most ``max_points``; and, from ``pose0`` (None: no match wanted),
+    their :func:`align` result when there are at least ``min_points`` of them and in
+    ``ref`` (else None)."""
     levels = 0 if pose0 is None else schedule.distances.shape[0]
-    pts, raw = _points_and_align(ranges, cos, sin, valid_min, valid_max, min_range, max_range,
-                                 max_points, min_points,
-                                 _ORIGIN if pose0 is None else np.asarray(pose0, dtype=float),
-                                 levels, schedule.distances, schedule.settings, *ref.arrays)
-    if pose0 is None or pts.shape[0] < min_points or ref.n_points < min_points:
-        return pts, None
-    return pts, _result(raw, pts.shape[0])
+    out = np.empty(RESULT_SIZE)
+    pts, matched = _points_and_align(
+        ranges, NO_SKIP if skip is None else skip, cos, sin, valid_min, valid_max, min_range,
+        max_range, max_points, min_points,
+        _ORIGIN if pose0 is None else np.asarray(pose0, dtype=float), levels,
+        schedule.distances, schedule.settings, *ref.arrays, out)
+    return pts, (result(out, pts.shape[0]) if matched else None)
 
 
+#: ``skip`` of :func:`match_scan` leaving no beam out.
+NO_SKIP = np.zeros(0, np.bool_)
 _ORIGIN = np.zeros(3)
 
 
@@ -890,3 +914,14 @@ def _result(raw, n_source: int) -> IcpResult:
                      converged=bool(converged), n_source=n_source, n_inliers=int(n_in),
                      rms=rms, eigenvalues=evals, eigenvectors=evecs, scale=scale,
                      last_step=last)
+
+
+def result(packed: np.ndarray, n_source: int) -> IcpResult:
+    """The :class:`IcpResult` of a packed result (``POSE`` ... ``LAST_STEP``; its arrays
+    are views of ``packed``)."""
+    sum_w, iterations, converged, n_in, rms, scale = packed[SCALARS:SCALARS + 6].tolist()
+    return IcpResult(packed[POSE:POSE + 3], packed[HESSIAN:HESSIAN + 9].reshape(3, 3), sum_w,
+                     int(iterations), converged != 0.0, n_source, int(n_in), rms,
+                     packed[EIGENVALUES:EIGENVALUES + 3],
+                     packed[EIGENVECTORS:EIGENVECTORS + 9].reshape(3, 3), scale,
+                     packed[LAST_STEP:LAST_STEP + 3])

@@ -144,7 +144,8 @@ class Pipeline:
     # ------------------------------------------------------------------ streams
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list[StepResult]:
         """Feed one odometry sample; returns the results of scans it released."""
-        return self._finish(self.ego.add_odometry(stamp, pose, arrival))
+        released = self.ego.add_odometry(stamp, pose, arrival)
+        return self._finish(released) if released else []
 
     def add_scan(self, scan: Scan, arrival: float | None = None,
                  want_grids: bool = False) -> list[StepResult]:

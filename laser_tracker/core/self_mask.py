@@ -384,7 +384,6 @@ def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel
     world moves past it by ``forget_travel`` is given up."""
     n = r.size
     hit = np.zeros(n, np.bool_)
-    moved = np.zeros(n)
     within = np.zeros(n, np.bool_)
     cth, sth = math.cos(th), math.sin(th)
     run_start = -1
@@ -397,8 +396,6 @@ def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel
                 continue
             hit[k] = True
             px, py = rk * cos[k], rk * sin[k]
-            qx, qy = px - x, py - y
-            moved[k] = math.hypot(cth * qx + sth * qy - px, -sth * qx + cth * qy - py)
             if last >= 0 and _within(px - r[last] * cos[last], py - r[last] * sin[last],
                                      surface_jump):
                 farthest = max(farthest, rk)
@@ -415,7 +412,7 @@ def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel
         near = hit[k] and rk <= reach and within[k]
         keeps = near and abs(rk - anchor[k]) <= tolerance
         if keeps:
-            kept[k] += moved[k]
+            kept[k] += _moved(rk * cos[k], rk * sin[k], x, y, cth, sth)
         elif hit[k]:
             kept[k] = 0.0
         if near and not keeps:
@@ -430,7 +427,7 @@ def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel
                 changed = True
         if hit[k]:
             if rk > body[k] + tolerance:
-                beyond[k] += moved[k]
+                beyond[k] += _moved(rk * cos[k], rk * sin[k], x, y, cth, sth)
             elif rk <= body[k] + tolerance:
                 beyond[k] = 0.0
         if beyond[k] >= forget_travel:
@@ -439,6 +436,16 @@ def _learn(r, cos, sin, range_min, range_max, x, y, th, reach, tolerance, travel
             body[k] = np.nan
             beyond[k] = 0.0
     return changed
+
+
+@jit.inline
+def _moved(px, py, x, y, cth, sth):
+    """How far the static point ``(px, py)`` of the scanner's frame moves in it when the
+    scanner moves by ``x, y`` and turns by the angle of cosine ``cth`` and sine ``sth``;
+    computed only for the returns that use it (a hypot costs more than the rest of a
+    beam)."""
+    qx, qy = px - x, py - y
+    return math.hypot(cth * qx + sth * qy - px, -sth * qx + cth * qy - py)
 
 
 def _exercise_learn() -> None:

@@ -207,7 +207,7 @@ class EgoMotion:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
         left_out = self.self_mask.left_out(scan)   # the body, learnt or probable; mixed returns
         body = self.self_mask.masked_ranges
-        est = self.estimator.update(_without(scan, left_out))
+        est = self.estimator.update(scan, left_out)
         self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
         pose = np.asarray(est.pose, dtype=float)
         x, y, theta = pose.tolist()
@@ -229,7 +229,8 @@ class EgoMotion:
         if quality.restarted or not np.isfinite(cov).all():
             self._pose_cov = np.zeros((3, 3)) if quality.restarted else self._pose_cov
         else:
-            c, s = math.cos(pose[2] - motion[2]), math.sin(pose[2] - motion[2])
+            turn = theta - float(motion[2])          # the previous scanner's heading
+            c, s = math.cos(turn), math.sin(turn)
             rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
             self._pose_cov = self._pose_cov + rot @ cov @ rot.T
         return StampedPose(stamp=float(scan.stamp), pose=pose, motion=motion,
