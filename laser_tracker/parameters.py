@@ -105,6 +105,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'difference.pose_gate': False,     # every scan reports, whatever its ego-motion quality
         'difference.free_window': 0.0,     # free before = free in the previous grid
         'difference.static_time': 0.0,     # no static background
+        'difference.walked_out_window': 0.0,  # a person walked in, never out
         'blobs.position': 'changed',       # the blob is its changed cells
         'blobs.centre_offset': 0.0,
         'person_detector.enabled': False,  # what moves only: no people by leg shape
@@ -122,6 +123,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.person_blob_gate': 0.0,  # every track takes blobs within the gate
         'hypotheses.new_when_ungated': False,  # Eq. 2 alone says which blob is new
         'hypotheses.confirm_time': 0.0,    # 4 samples, however short a time they span
+        'hypotheses.person_initial_weight': 0.0,  # every hypothesis starts at initial_weight
     },
 }
 

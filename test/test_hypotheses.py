@@ -478,6 +478,21 @@ def test_coast_grace_spares_a_new_hypothesis_a_missed_scan():
     assert survives(0.5) == pytest.approx(20.0)
 
 
+@pytest.mark.parametrize('weight, survives', [(0.0, False), (40.0, True)])
+def test_a_person_detection_starts_a_hypothesis_that_outlives_one_missed_scan(weight,
+                                                                               survives):
+    """At 7.5 Hz a missed scan costs 200 x 0.133 = 27: a person hypothesis started at the
+    paper's 20 is gone after it, one started at 40 is not (and after two misses it is)."""
+    tr = HypothesisTracker(HypothesisConfig(person_initial_weight=weight), KalmanConfig())
+    dt = 1 / 7.5
+    tr.update(people(0.0, (2.0, 1.0)))
+    assert len(tr.hyp) == 1 and tr.hyp.weight[0] == (weight or 20.0)
+    tr.update(people(dt))                                       # missed
+    assert (len(tr.hyp) == 1) is survives
+    tr.update(people(2 * dt))
+    assert len(tr.hyp) == 0
+
+
 def test_new_parameters_reach_every_role_and_the_memory_stays():
     """reconfigure: the next frame runs under the new parameters; hypotheses, earlier frames
     (creation pairs) and ids are kept."""

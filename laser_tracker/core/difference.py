@@ -141,6 +141,23 @@ class DifferenceConfig:
         2.0, 'A scan more than this long (s) after the previous one is not compared with the '
         'grids before the gap (the scene and the platform moved on): it starts a new '
         'history.', min=0.01, max=3600.0)
+    walked_out_window: float = param(
+        1.0, 'A detected person has also walked (like one who walked in) when, in a scan of '
+        'the last this many seconds, the person detected nearest them was at least two '
+        'walked_out_radius away, within walked_out_speed of reach, and stood where the '
+        'current scan now sees empty space: every beam through a disc of walked_out_radius around that place goes on '
+        'beyond it (by motion_depth times the displacement, as for a changed cell). Someone '
+        'who walks away from the scanner leaves space seen free, though they never entered '
+        'space seen free before (their own shadow); a chair or table leg never leaves its '
+        'place, and a track that hops between two of them finds the first one still there. '
+        '0 = off (walked in only).', min=0.0, max=10.0)
+    walked_out_radius: float = param(
+        0.3, 'Radius (m) of the place a person stands on (both legs of a stride) for '
+        'walked_out_window.', min=0.05, max=2.0)
+    walked_out_speed: float = param(
+        3.0, 'Fastest a person moves (m/s): an earlier detection farther than this times the '
+        'time since (plus walked_out_radius) is someone else (walked_out_window).',
+        min=0.1, max=20.0)
 
 
 @dataclass(frozen=True)
@@ -339,9 +356,48 @@ def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta,
     return jit.unique(changed[:n_changed])
 
 
+@jit.inline
+def _left_empty(x, y, pose_then, current, free, meta, silent, radius, motion_depth):
+    """Whether the current scan (grid buffer ``current``) sees the disc of ``radius`` around
+    ``(x, y)`` (odometry frame) empty: every beam through it goes on beyond its far side by
+    ``motion_depth`` times the displacement between the scanner pose then (``pose_then``)
+    and now at that place (:func:`_displaced`'s margin), or returned nothing at all
+    (``silent``: NaN, +inf, a no-return code below ``range_min``; a person there would have
+    returned an echo on some of them), and at least one beam goes on beyond it."""
+    px, py, pt = meta[current, 0], meta[current, 1], meta[current, 2]
+    c, s = math.cos(pt), math.sin(pt)
+    dx, dy = x - px, y - py
+    lx, ly = c * dx + s * dy, -s * dx + c * dy       # the place in the current scanner frame
+    rho = math.hypot(lx, ly)
+    if rho <= radius:
+        return False
+    turn = abs((pt - pose_then[2] + math.pi) % (2.0 * math.pi) - math.pi)
+    need = rho + radius + motion_depth * (math.hypot(px - pose_then[0], py - pose_then[1])
+                                          + rho * turn)
+    half = math.asin(radius / rho)
+    bearing = math.atan2(ly, lx)
+    inc = abs(meta[current, 5])
+    steps = int(math.ceil(half / inc))
+    through = False
+    for k in range(-steps, steps + 1):
+        a = bearing + k * inc
+        if abs(a - bearing) > half and k != 0:
+            continue
+        b = covering_beam(math.cos(a), math.sin(a), meta[current, 4], meta[current, 5],
+                          meta[current, 6])
+        if b < 0:
+            return False
+        if np.float64(free[current, b]) >= need:
+            through = True
+        elif not silent[b]:
+            return False
+    return through
+
+
 @jit.kernel
 def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, meta, order,
-            cells, resolution, motion_depth, key, count, last, background):
+            cells, resolution, motion_depth, key, count, last, background, current, silent,
+            recent, walked_out):
     """People (``persons`` at their ``legs``, rows of ``leg_xy``, -1: none; the scanner frame
     at ``pose``) in the odometry frame with, per person: were the places of all its legs seen
     FREE in one of the grids ``order`` and are they not static background (someone who
@@ -349,7 +405,11 @@ def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, 
     (NaN for one); and ``leg_xy`` in the odometry frame. FREE as for a changed cell: with
     ``motion_depth``, only by a beam that went on far enough beyond (:func:`_earlier`), so
     that a wall's corner or a chair's leg that the moving scanner's parallax uncovers has not
-    walked in."""
+    walked in. With ``walked_out`` (window, radius, speed; window 0: off) a person has also
+    walked when, in an earlier scan of the window, the detection nearest it (of the
+    ``recent`` ones, rows: x, y, stamp and the scanner pose then, in time order) was in reach
+    and at least two radii away and stood where the current grid (buffer ``current``; its beams without a return: ``silent``) sees empty space
+    (:func:`_left_empty`)."""
     n, k = persons.shape[0], leg_xy.shape[0]
     world = np.empty((n, 2))
     for r in range(n):
@@ -391,6 +451,27 @@ def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, 
                                           motion_depth) == FREE
             walked[r] &= seen_free
             standing[r] &= static
+    window, radius, speed = walked_out[0], walked_out[1], walked_out[2]
+    if window > 0.0 and current >= 0:
+        for r in range(n):
+            first = 0
+            while first < recent.shape[0] and not walked[r]:
+                # one earlier scan (rows of one stamp): its detection nearest this person
+                last = first
+                while last < recent.shape[0] and recent[last, 2] == recent[first, 2]:
+                    last += 1
+                age = stamp - recent[first, 2]
+                if 0.0 < age <= window:
+                    e, d = -1, np.inf
+                    for q in range(first, last):
+                        dq = math.hypot(world[r, 0] - recent[q, 0], world[r, 1] - recent[q, 1])
+                        if dq < d:
+                            e, d = q, dq
+                    if 2.0 * radius <= d <= speed * age + radius:
+                        walked[r] = _left_empty(recent[e, 0], recent[e, 1], recent[e, 3:6],
+                                                current, free, meta, silent, radius,
+                                                motion_depth)
+                first = last
     return world, walked, standing, spread, legs_world
 
 
@@ -465,16 +546,26 @@ def changed_with_history(frame, stamp: float, pose, history: GridHistory,
 
 
 def people_in_odometry(people, pose, stamp: float, history: GridHistory,
-                       background: StaticBackground | None, motion_depth: float) -> tuple:
+                       background: StaticBackground | None, motion_depth: float,
+                       recent: np.ndarray | None = None, walked_out=(0.0, 0.0, 0.0),
+                       silent: np.ndarray | None = None) -> tuple:
     """``people`` (``person_detector.PersonDetections`` of the scan at ``pose``, whose grid
-    is ``history[0]``) in the odometry frame: (positions, walked in, on static background,
-    leg spread) per person (see :func:`_people`) and the positions of their clusters."""
+    is ``history[0]``) in the odometry frame: (positions, walked in or out, on static
+    background, leg spread) per person (see :func:`_people`; ``recent``: earlier detections,
+    rows x, y, stamp, scanner pose; ``walked_out``: window, radius, speed, window 0 = off;
+    ``silent``: the scan's beams without a return, :meth:`Scan.silent`, default none) and
+    the positions of their clusters."""
     b = history.builder
     bg = background.arrays if background is not None else _NO_BACKGROUND
+    current = int(history.order[0]) if len(history) else -1
+    if silent is None:
+        silent = np.zeros(int(b.meta[current, 6]) if current >= 0 else 0, np.bool_)
     return _people(people.xy, people.legs, np.ascontiguousarray(people.leg_xy, dtype=float),
                    np.asarray(pose, dtype=float), float(stamp), *b.arrays[:5], b.meta,
                    history.order[1:], b.cells, float(b.config.resolution),
-                   float(motion_depth), *bg)
+                   float(motion_depth), *bg, current, silent,
+                   _NO_RECENT if recent is None else recent,
+                   np.asarray(walked_out, dtype=float))
 
 
 def _settings(config: DifferenceConfig, resolution: float) -> np.ndarray:
@@ -563,3 +654,5 @@ class StaticBackground:
 
 _NO_POINTS = np.zeros((0, 2))
 _NO_BACKGROUND = (np.zeros(1, np.int64), np.zeros(1), np.zeros(1), np.zeros(0))
+#: No earlier person detections (rows: x, y, stamp, scanner pose x, y, theta).
+_NO_RECENT = np.zeros((0, 6))

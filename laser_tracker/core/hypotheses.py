@@ -95,6 +95,12 @@ class HypothesisConfig:
                                     max=10.0)
     initial_weight: float = param(20.0, 'Weight of a new hypothesis ("low", paper Sec. 8).',
                                   min=0.0, max=100.0)
+    person_initial_weight: float = param(
+        40.0, 'Weight of a hypothesis a person detection starts: a leg-shaped measurement of '
+        'the object itself, not a pair of changed cells, so it survives the one missed '
+        'detection of a scanner at 7.5 Hz or faster (coasting costs coast_rate x dt, 27 at '
+        '7.5 Hz, and below remove_below it is gone). 0 = initial_weight (paper).',
+        min=0.0, max=100.0)
     w_inc: float = param(60.0, 'Eq. 3 W_inc (paper: 60).', min=0.0, max=100.0)
     w_dec: float = param(15.0, 'Eq. 3 W_dec per distance unit (paper: 15).', min=0.0,
                          max=100.0)

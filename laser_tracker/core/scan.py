@@ -78,6 +78,13 @@ class Scan:
         with np.errstate(invalid='ignore'):
             return np.isfinite(r) & (r >= max(self.range_min, 1e-6)) & (r < self.range_max)
 
+    def silent(self) -> np.ndarray:
+        """Beams that returned nothing (REP 117: +inf, NaN, a no-return code below
+        ``range_min``, a reading at ``range_max``): not -inf (something too close)."""
+        r = self.ranges
+        with np.errstate(invalid='ignore'):
+            return ~(self.valid() | (r == -np.inf))
+
     def points(self, max_range: float | None = None) -> np.ndarray:
         """Cartesian end points (M, 2) of the valid beams, in the laser frame."""
         mask = self.valid()

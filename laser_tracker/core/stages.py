@@ -309,6 +309,9 @@ class Detector:
         d = self.difference_config
         self.background = StaticBackground(self.grid_config.resolution, d) \
             if d.static_time > 0 else None
+        # People detected in the last difference.walked_out_window seconds: x, y, stamp and
+        # the scanner pose (odometry frame).
+        self.recent_people = np.zeros((0, 6))
         self.rules.reset()
 
     @property
@@ -387,15 +390,31 @@ class Detector:
             people = PersonDetections.empty()
             people.leg_xy = segments_of(scan, self.segment_config).xy
             leg = np.zeros(people.leg_xy.shape[0])
+        c = self.difference_config
+        stamp = float(scan.stamp)
+        walked_out = (0.0 if det.gated else c.walked_out_window, c.walked_out_radius,
+                      c.walked_out_speed)
         xy, free, static, spread, segments = \
-            people_in_odometry(people, pose, float(scan.stamp), self.history, self.background,
-                               self.difference_config.motion_depth)
+            people_in_odometry(people, pose, stamp, self.history, self.background,
+                               c.motion_depth, self.recent_people, walked_out, scan.silent())
         if self.person_detector is not None:
             d.people = People(xy=xy, confidence=people.confidence, free=free, spread=spread,
                               static=static)
+            self._remember_people(xy, stamp, pose)
         d.segments = Segments(xy=segments, leg=leg)
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
+
+    def _remember_people(self, xy: np.ndarray, stamp: float, pose: np.ndarray) -> None:
+        """This scan's people join those of the last ``walked_out_window`` seconds."""
+        window = self.difference_config.walked_out_window
+        if window <= 0:
+            return
+        recent = self.recent_people
+        keep = stamp - recent[:, 2] < window
+        rows = np.empty((xy.shape[0], 6))
+        rows[:, :2], rows[:, 2], rows[:, 3:] = xy, stamp, pose
+        self.recent_people = np.concatenate((recent[keep], rows))
 
     def _add_to_background(self, pose: np.ndarray, stamp: float, det: Detection) -> None:
         """This scan's end points join the static background, except those of what moves
@@ -599,7 +618,9 @@ def _exercise_detection() -> None:
     people = PersonDetector(PersonDetectorConfig(), one_leaf).detect(scan)
     people.legs = np.array([[0, -1]])
     people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background,
-                       detector.difference_config.motion_depth)
+                       detector.difference_config.motion_depth,
+                       np.array([[0.5, 0.5, 0.0, 0.0, 0.0, 0.0]]), (1.0, 0.3, 3.0),
+                       scan.silent())
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:

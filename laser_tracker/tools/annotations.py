@@ -456,6 +456,20 @@ class AnnotatedEvaluation:
     verdicts: object | None = None           # scoring.FrameVerdicts (all), scan frame
 
 
+def _near_annotation(frame: np.ndarray, x: np.ndarray, y: np.ndarray, people: Frames,
+                     threshold: float) -> np.ndarray:
+    """Per track row (its scored frame and position, scan frame): an annotated person of that
+    frame lies within ``threshold``."""
+    out = np.zeros(frame.size, bool)
+    order = np.argsort(people.frame, kind='stable')
+    pf = people.frame[order]
+    lo, hi = np.searchsorted(pf, frame, 'left'), np.searchsorted(pf, frame, 'right')
+    for r in np.flatnonzero(hi > lo):
+        rows = order[lo[r]:hi[r]]
+        out[r] = (np.hypot(people.x[rows] - x[r], people.y[rows] - y[r]) <= threshold).any()
+    return out
+
+
 def _scan_frames(replay, scans: ScanTimes, tolerance: float, bag, folder, config):
     """Per bag scan, the replay's ego pose (NaN where none), its ego-motion run and the
     scored frame number (-1: not scored)."""
@@ -483,11 +497,16 @@ def _scan_frames(replay, scans: ScanTimes, tolerance: float, bag, folder, config
 
 
 def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
-                       scan_topic: str | None = None, persons=None) -> AnnotatedEvaluation:
+                       scan_topic: str | None = None, persons=None,
+                       area=None) -> AnnotatedEvaluation:
     """Score a replay (``evaluate.Replay``) against the annotations of ``bag``.
 
     ``config``: ``scoring.EvaluationConfig`` (threshold, confirmed_only, walking_speed,
-    speed_window, stamp_tolerance); ``persons``: annotated ids to score (default all).
+    speed_window, stamp_tolerance); ``persons``: annotated ids to score (default all);
+    ``area`` (xmin, xmax, ymin, ymax): the box of the scan frame where every person is
+    annotated (a recording labelled only there): a track outside it is scored only where it
+    lies within the threshold of an annotated person (who may step out of the box), else it
+    is ignored (someone walking elsewhere).
     """
     from laser_tracker.errors import LaserTrackerError
     from laser_tracker.tools.bag import read_scan_times
@@ -539,6 +558,13 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
         log.warning('%d track row(s) at stamps of no scored scan ignored', int((~usable).sum()))
     t, scan_of = t.select(usable), scan_of[usable]
     tx, ty = from_frame(poses[scan_of], t.x, t.y)
+    outside = 0
+    if area is not None:
+        x0, x1, y0, y1 = area
+        inside = (tx >= x0) & (tx <= x1) & (ty >= y0) & (ty <= y1)
+        inside |= _near_annotation(frame[scan_of], tx, ty, people, config.threshold)
+        outside = int(np.unique(t.track_id[~inside]).size)
+        t, scan_of, tx, ty = t.select(inside), scan_of[inside], tx[inside], ty[inside]
     tracks = Frames.of(frame[scan_of], t.track_id, tx, ty)
 
     follow = score_following(n_frames, people, tracks, config.threshold)
@@ -564,6 +590,8 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                         'standing': int((~walking).sum()),
                         'speed_unknown': int(unknown_speed.sum())},
         'tracks_scored': int(np.unique(t.track_id).size),
+        'area': None if area is None else [float(v) for v in area],
+        'tracks_outside_area': outside,
         'following': fd,
         'following_all_annotations': comparable,
         'clear_mot': mot,

@@ -19,7 +19,11 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
 * ``negative_2_left`` / ``_right`` / ``_rear``: leg_tracker's ``negative_2.bag``, one row per
   scanner: a robot driving 38 m with nobody in view, so every confirmed track is false; and
   ``..._inf``: the same scans with their no-return readings (0 and codes below ``range_min``)
-  written as +inf, as REP 117 drivers write them.
+  written as +inf, as REP 117 drivers write them;
+* ``leg_scenes`` (and ``leg_scenes_inf``, no-return readings as +inf): leg_tracker's six
+  leg-labelled training recordings replayed as scenes (``tools.leg_scenes``): CLEAR MOT over
+  the people of the labelled legs, pooled over the six, each replayed with a person detector
+  trained without it (the shipped model was trained on all six).
 
 What is not present is reported as missing, never failed. It takes a few minutes
 (``--jobs 2`` on a free 2-core machine halves it).
@@ -46,7 +50,10 @@ MODES = ('paper', 'motion', 'defaults')
 NEGATIVE_SCANNERS = ('left', 'right', 'rear')
 RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_csail',
               'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
-                                  for s in NEGATIVE_SCANNERS)
+                                  for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
+#: The counts of CLEAR MOT that pool over the parts of a recording made of several scenes.
+POOLED = ('objects', 'misses', 'fp', 'switches', 'walking_objects', 'walking_misses',
+          'walking_fp', 'walking_switches', 'confirmed', 'scans', 'outside_area')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -64,15 +71,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--jobs', type=int, default=1, help='replays run in parallel')
 
 
-def mode_parameters(mode: str, files=()):
-    """Loaded node parameters of a mode (``custom``: the given files)."""
+def mode_parameters(mode: str, files=(), overrides=None):
+    """Loaded node parameters of a mode (``custom``: the given files), with ``overrides``."""
+    overrides = dict(overrides or {})
     if mode == 'paper':
-        return parameters.load_files([REPO / 'config' / 'paper_reference.yaml'])
-    if mode == 'motion':
-        return parameters.load([], overrides={'person_detector.enabled': False})
-    if mode == 'custom':
-        return parameters.load_files(files)
-    return parameters.load([])
+        files = [REPO / 'config' / 'paper_reference.yaml']
+    elif mode == 'motion':
+        overrides['person_detector.enabled'] = False
+    elif mode != 'custom':
+        files = []
+    return parameters.load(parameters.read_files(files), overrides=overrides)
 
 
 def no_returns_as_inf(src: Path, dst: Path, scan_topics) -> None:
@@ -126,7 +134,32 @@ def _recordings(work: Path) -> dict:
     return found
 
 
-def score(name: str, bag: Path, scan_topic: str, scoring: str, config, out: Path) -> dict:
+def _leg_scenes(work: Path, names, with_detector: bool) -> dict:
+    """name -> [(scene bag, scoring extras)] for the leg-labelled scenes asked for; the
+    held-out detector models are trained once (cached) when a mode uses the detector."""
+    from laser_tracker.tools import leg_scenes
+
+    positives = leg_scenes.positive_recordings()
+    found = {}
+    for name, inf in (('leg_scenes', False), ('leg_scenes_inf', True)):
+        if name not in names or not positives:
+            continue
+        parts = []
+        for src in positives:
+            scene = work / f'{src.stem}{"_inf" if inf else ""}'
+            info_file = scene.with_suffix('.json')
+            if not scene.exists():
+                info_file.write_text(json.dumps(leg_scenes.write_scene(src, scene, inf)))
+            extra = json.loads(info_file.read_text())
+            if with_detector:
+                extra['model'] = str(leg_scenes.held_out_model(src))
+            parts.append((scene, extra))
+        found[name] = parts
+    return found
+
+
+def score(name: str, bag: Path, scan_topic: str, scoring: str, config, out: Path,
+          extra: dict | None = None) -> dict:
     """Replay ``bag`` into ``out`` with ``config`` and score it; the figures of the table."""
     from laser_tracker.tools.evaluate import evaluate_recording, report_unlabelled
     from laser_tracker.tools.replay import replay_bag
@@ -136,6 +169,15 @@ def score(name: str, bag: Path, scan_topic: str, scoring: str, config, out: Path
                          progress=False)
     row = {'scans': summary['scans'], 'confirmed': summary['confirmed_tracks'],
            'replay_s': round(time.perf_counter() - t0, 1)}
+    if scoring == 'scene':
+        ev = evaluate_recording(out, bag, scan_topic=scan_topic, area=extra['area']).result
+        for key, part in (('', 'all'), ('walking_', 'walking')):
+            m = ev['clear_mot'][part]
+            row.update({f'{key}objects': m['num_objects'], f'{key}misses': m['num_misses'],
+                        f'{key}fp': m['num_false_positives'],
+                        f'{key}switches': m['num_switches']})
+        row['outside_area'] = ev['tracks_outside_area']
+        return row
     if scoring == 'annotated':
         ev = evaluate_recording(out, bag, scan_topic=scan_topic).result
         f = ev['following_all_annotations']
@@ -186,9 +228,27 @@ def _kinds(tracks: Path, ego: Path) -> dict:
 
 
 def _run_one(job) -> tuple[str, str, dict]:
-    name, mode, bag, topic, scoring, files, out = job
+    name, mode, bag, topic, scoring, files, out, extra = job
     logging.basicConfig(level=logging.ERROR)
-    return name, mode, score(name, bag, topic, scoring, mode_parameters(mode, files), out)
+    overrides = {}
+    if extra and 'model' in extra and mode != 'paper':
+        overrides['person_detector.model'] = extra['model']
+    return name, mode, score(name, bag, topic, scoring, mode_parameters(mode, files, overrides),
+                             out, extra)
+
+
+def pooled(parts: list[dict]) -> dict:
+    """One row of the rows of a recording's scenes: counts added, CLEAR MOT's MOTA and the
+    recall of the pooled counts."""
+    row = {k: sum(p[k] for p in parts) for k in POOLED}
+    row['replay_s'] = round(sum(p['replay_s'] for p in parts), 1)
+    row['scenes'] = len(parts)
+    for key in ('', 'walking_'):
+        n = max(row[f'{key}objects'], 1)
+        row[f'{key}mota'] = 1.0 - (row[f'{key}misses'] + row[f'{key}fp']
+                                   + row[f'{key}switches']) / n
+        row[f'{key}recall'] = 1.0 - row[f'{key}misses'] / n
+    return row
 
 
 def run(args: argparse.Namespace) -> int:
@@ -201,26 +261,30 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_real_') as tmp:
         work = Path(args.keep) if args.keep else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        found = _recordings(work)
         names = args.only or list(RECORDINGS)
+        found = {n: [(bag, topic, scoring, None)]
+                 for n, (bag, topic, scoring) in _recordings(work).items()}
+        scenes = _leg_scenes(work, names, any(m != 'paper' for m in modes))
+        found.update({n: [(bag, '/scan', 'scene', extra) for bag, extra in parts]
+                      for n, parts in scenes.items()})
         jobs = []
         for name in names:
             if name not in found:
                 print(f'{name}: not found under $LASER_TRACKER_DATA (README.md, "Data")')
                 continue
-            bag, topic, scoring = found[name]
-            jobs += [(name, mode, bag, topic, scoring, args.config, work / f'{name}_{mode}')
-                     for mode in modes]
+            for k, (bag, topic, scoring, extra) in enumerate(found[name]):
+                part = f'_{k}' if len(found[name]) > 1 else ''
+                jobs += [(name, mode, bag, topic, scoring, args.config,
+                          work / f'{name}{part}_{mode}', extra) for mode in modes]
         results: dict = {}
-        if args.jobs > 1:
-            with ProcessPoolExecutor(args.jobs) as pool:
-                done = pool.map(_run_one, jobs)
-                for name, mode, row in done:
-                    results.setdefault(name, {})[mode] = row
-                    _print_row(name, mode, row, args.markdown)
-        else:
-            for job in jobs:
-                name, mode, row = _run_one(job)
+        parts: dict = {}
+        with ProcessPoolExecutor(args.jobs) if args.jobs > 1 else _Serial() as pool:
+            for name, mode, row in pool.map(_run_one, jobs):
+                if len(found[name]) > 1:
+                    parts.setdefault((name, mode), []).append(row)
+                    if len(parts[(name, mode)]) < len(found[name]):
+                        continue
+                    row = pooled(parts[(name, mode)])
                 results.setdefault(name, {})[mode] = row
                 _print_row(name, mode, row, args.markdown)
     if args.markdown:
@@ -228,6 +292,20 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2) + '\n')
     return 0
+
+
+class _Serial:
+    """``map`` in this process (``--jobs 1``), as a context like ProcessPoolExecutor."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    @staticmethod
+    def map(fn, items):
+        return map(fn, items)
 
 
 def _print_row(name: str, mode: str, row: dict, quiet: bool) -> None:
@@ -238,6 +316,10 @@ def _print_row(name: str, mode: str, row: dict, quiet: bool) -> None:
 
 def headline(row: dict) -> str:
     """The one figure that judges a recording's row (README.md, "Real recordings")."""
+    if 'scenes' in row:
+        return (f"MOTA {row['mota']:.3f}, recall {row['recall']:.3f} "
+                f"(walking {row['walking_recall']:.3f}), {row['fp']:,} false positives, "
+                f"{row['switches']} switches")
     if 'tracked' in row:
         return (f"{row['tracked']:,} of {row['annotated']:,} "
                 f"({100 * row['tracked'] / max(row['annotated'], 1):.1f} %), "

@@ -344,7 +344,7 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
                        config: EvaluationConfig = EvaluationConfig(), *,
                        static: str | None = None, scan_topic: str | None = None,
                        annotation_topic: str | None = None, persons=None,
-                       static_config=None, force: bool = False) -> Evaluation:
+                       static_config=None, force: bool = False, area=None) -> Evaluation:
     """Score a replay folder against whatever ground truth ``bag`` carries.
 
     The replay must be of ``bag`` (:func:`check_replayed`) unless ``force``.
@@ -353,6 +353,8 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
     ``annotations.evaluate_annotated``; reference poses only: false tracks on static
     structure (``static_map.evaluate_static``). ``static`` (``reference`` or ``ego``) adds the
     static-structure count to any of them, or asks for it on an unlabelled recording.
+    ``area``: hand annotations only, the box of the scan frame they cover (tracks outside it
+    are not scored).
     """
     from laser_tracker.tools.annotations import ANNOTATION_TOPIC, evaluate_annotated
     from laser_tracker.tools.bag import resolve_bag, scan_topic_of
@@ -371,7 +373,8 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
     if kind == 'simulated':
         ev = evaluate_replay(folder, bag, config, replay)
     elif kind == 'annotated':
-        ann = evaluate_annotated(replay, bag, config, annotation_topic, scan_topic, persons)
+        ann = evaluate_annotated(replay, bag, config, annotation_topic, scan_topic, persons,
+                                 area)
         ev = Evaluation(ann.result, None, replay, annotated=ann)
     elif static is not None:
         result = {'mode': 'static', 'replay': str(folder), 'bag': str(bag)}
@@ -782,6 +785,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                    '(default /ground_truth_people_tracks)')
     parser.add_argument('--person', type=int, action='append', metavar='ID',
                         help='annotated recordings: score only this person id (repeatable)')
+    parser.add_argument('--area', nargs=4, type=float, metavar=('XMIN', 'XMAX', 'YMIN', 'YMAX'),
+                        help='annotated recordings: only this box of the scan frame is '
+                             'annotated; tracks outside it are scored only on an annotated '
+                             'person')
     static = parser.add_mutually_exclusive_group()
     static.add_argument('--static-map', choices=('reference', 'ego'),
                         help='also count false confirmed tracks on static structure, mapped '
@@ -827,7 +834,7 @@ def run(args: argparse.Namespace) -> int:
                                 scan_topic=args.scan_topic,
                                 annotation_topic=args.annotation_topic, persons=args.person,
                                 static_config=static_config_from_args(args),
-                                force=args.force)
+                                force=args.force, area=args.area)
     result = ev.result
     figures = [] if args.no_figures else write_figures(ev, folder)
     result['figures'] = [str(p) for p in figures]

@@ -105,6 +105,8 @@ class Initiation(Role):
             dt[idx[ok]] = age
             todo[idx[ok]] = False
         out = self._create(frame, persons, prev, dt, np.full(persons.shape[0], np.nan))
+        if self.config.person_initial_weight > 0:
+            out.weight = self.config.person_initial_weight
         out.person_samples = 1
         out.origin = np.where(free, PERSON_WALKED_IN, PERSON)
         out.spread = np.column_stack((spread, spread))

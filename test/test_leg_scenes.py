@@ -1,0 +1,139 @@
+"""Leg-labelled training recordings as annotated tracking scenes (``tools.leg_scenes``), the
+labelled area in the annotated scoring, and the pooled rows of ``bench real``."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_tracker.conversions import header
+from laser_tracker.tools import leg_scenes
+from laser_tracker.tools.annotations import read_annotations
+from laser_tracker.tools.bag import FACTORY, BagWriter
+from laser_tracker.tools.bench_real import pooled
+from laser_tracker.tools.data import real_recording
+from laser_tracker.tools.evaluate import evaluate_recording
+
+from test_evaluate import write_replay
+
+PERIOD = 1 / 7.5
+
+
+def test_legs_pair_into_people_nearest_first():
+    legs = [np.array([[1.0, 0.0], [1.0, 0.3], [3.0, 0.0]]),     # a pair and a lone leg
+            np.array([[1.0, 0.0], [1.0, 0.5], [1.0, 1.0]]),     # 0.5 apart twice: one pair
+            np.zeros((0, 2))]
+    people = leg_scenes.people_of_legs(legs, pair_distance=0.6)
+    assert np.allclose(people[0], [[1.0, 0.15], [3.0, 0.0]])
+    assert people[1].shape == (2, 2) and np.allclose(people[1][0], [1.0, 0.25])
+    assert people[2].shape == (0, 2)
+
+
+def test_people_keep_their_id_until_a_gap_or_a_jump():
+    stamps = np.array([0.0, 0.13, 0.27, 5.0, 5.13])
+    people = [np.array([[1.0, 0.0], [3.0, 0.0]]), np.array([[3.1, 0.0], [1.1, 0.0]]),
+              np.array([[1.2, 0.0], [4.0, 0.0]]),          # the second one jumped 0.9 m
+              np.array([[1.2, 0.0]]),                       # after a gap: someone new
+              np.array([[1.3, 0.0]])]
+    p = leg_scenes.link_people(stamps, people, link_distance=0.5, max_gap=0.3)
+    ids = [p.person[p.scan == k].tolist() for k in range(5)]
+    assert ids == [[0, 1], [1, 0], [0, 2], [3], [3]]
+
+
+def _positive_bag(path, n=12, zeros=False):
+    """A labelled recording as leg_tracker extracted them: labels, then their scan."""
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 181)
+    with BagWriter(path) as bag:
+        for k in range(n):
+            t = 100.0 + k * PERIOD
+            x = 1.0 + 0.1 * k                        # one person walking away, legs 0.2 apart
+            legs = [(x, -0.1), (x, 0.1)]
+            poses = [FACTORY.make('geometry_msgs/msg/Pose',
+                                  position=FACTORY.make('geometry_msgs/msg/Point', x=lx, y=ly,
+                                                        z=0.0),
+                                  orientation=FACTORY.make('geometry_msgs/msg/Quaternion',
+                                                           x=0.0, y=0.0, z=0.0, w=1.0))
+                     for lx, ly in legs]
+            bag.write('/leg_cluster_positions', FACTORY.make(
+                'geometry_msgs/msg/PoseArray', header=header(FACTORY, t, 'laser'), poses=poses),
+                t)
+            r = np.full(angles.size, 0.0 if zeros else 6.0)
+            r[np.abs(angles) < 0.15] = x
+            bag.write('/training_scan', FACTORY.make(
+                'sensor_msgs/msg/LaserScan', header=header(FACTORY, t, 'laser'),
+                angle_min=float(angles[0]), angle_max=float(angles[-1]),
+                angle_increment=float(angles[1] - angles[0]), time_increment=0.0,
+                scan_time=PERIOD, range_min=0.02, range_max=10.0,
+                ranges=FACTORY.float32_array(r), intensities=FACTORY.float32_array(np.zeros(0))),
+                t + 0.001)
+
+
+def test_a_positive_recording_becomes_an_annotated_scene(tmp_path):
+    src = tmp_path / 'positive'
+    _positive_bag(src, zeros=True)
+    info = leg_scenes.write_scene(src, tmp_path / 'scene', no_return_as_inf=True)
+    assert info['scans'] == 12 and info['people'] == 1 and info['legs'] == 24
+    assert info['area'] == pytest.approx([1.0, 2.1, -0.1, 0.1])
+    ann = read_annotations(tmp_path / 'scene', scan_topic='/scan')
+    assert len(ann) == 12 and ann.ids() == [0]
+    assert np.allclose(ann.x, 1.0 + 0.1 * np.arange(12)) and np.allclose(ann.y, 0.0)
+    assert np.allclose(ann.scans.stamps, ann.scans.receive_ns * 1e-9)   # header stamps
+    from laser_tracker.tools.bag import read_scans
+    scan = next(iter(read_scans(tmp_path / 'scene', '/scan')))
+    assert np.isinf(scan.ranges).sum() == scan.ranges.size - (np.abs(scan.angles) < 0.15).sum()
+
+
+def test_tracks_outside_the_labelled_area_count_only_on_a_labelled_person(tmp_path):
+    src = tmp_path / 'positive'
+    _positive_bag(src)
+    info = leg_scenes.write_scene(src, tmp_path / 'scene')
+    stamps = 100.0 + PERIOD * np.arange(12)
+    ego = [(s, 0.0, 0.0, 0.0) for s in stamps]
+    rows = [(s, 1, 1.0 + 0.1 * k, 0.0, 0.7, 0.0, 80.0, True) for k, s in enumerate(stamps)]
+    rows += [(s, 2, 4.0, 3.0, 0.0, 0.0, 80.0, True) for s in stamps]       # someone else
+    rows += [(s, 3, 1.0 + 0.1 * k, 0.6, 0.7, 0.0, 80.0, True)               # a duplicate
+             for k, s in enumerate(stamps)]                                 # just outside
+    write_replay(tmp_path / 'replay', ego, rows)
+    whole = evaluate_recording(tmp_path / 'replay', tmp_path / 'scene', scan_topic='/scan',
+                               force=True).result
+    inside = evaluate_recording(tmp_path / 'replay', tmp_path / 'scene', scan_topic='/scan',
+                                force=True, area=info['area']).result
+    assert whole['clear_mot']['all']['num_false_positives'] == 24
+    # the duplicate beside the person still counts, the one elsewhere does not
+    assert inside['clear_mot']['all']['num_false_positives'] == 12
+    assert inside['tracks_outside_area'] == 1
+    assert inside['clear_mot']['all']['num_misses'] == 0
+
+
+def test_pooled_rows_add_the_counts_before_the_ratios():
+    parts = [dict(objects=100, misses=10, fp=5, switches=1, walking_objects=50,
+                  walking_misses=5, walking_fp=5, walking_switches=0, confirmed=3, scans=90,
+                  outside_area=1, replay_s=1.0),
+             dict(objects=10, misses=10, fp=0, switches=0, walking_objects=0, walking_misses=0,
+                  walking_fp=0, walking_switches=0, confirmed=0, scans=10, outside_area=0,
+                  replay_s=0.5)]
+    row = pooled(parts)
+    assert row['objects'] == 110 and row['scenes'] == 2
+    assert row['mota'] == pytest.approx(1 - 26 / 110)
+    assert row['recall'] == pytest.approx(1 - 20 / 110)
+    assert row['walking_recall'] == pytest.approx(0.9)
+
+
+@pytest.mark.skipif(not leg_scenes.positive_recordings(),
+                    reason='the leg_tracker training recordings are not under '
+                           '$LASER_TRACKER_DATA (README.md, "Data")')
+def test_a_real_positive_recording_becomes_a_scene_of_its_labelled_legs(tmp_path):
+    src = real_recording('leg_tracker/training/positive_2_extracted.bag')
+    info = leg_scenes.write_scene(src, tmp_path / 'scene')
+    scans, legs = leg_scenes.read_labelled(src)
+    assert info['scans'] == len(scans) and info['legs'] == sum(map(len, legs))
+    ann = read_annotations(tmp_path / 'scene', scan_topic='/scan')
+    for k, xy in enumerate(legs):             # each person is at a leg or between two
+        spots = np.vstack([xy, (xy[:, None, :] + xy[None, :, :]).reshape(-1, 2) / 2])
+        at = ann.scan == k
+        assert at.any()
+        for x, y in zip(ann.x[at], ann.y[at]):
+            assert np.hypot(*(spots - (x, y)).T).min() < 1e-6
+    x0, x1, y0, y1 = info['area']
+    assert x0 <= ann.x.min() and ann.x.max() <= x1 and y0 <= ann.y.min() and ann.y.max() <= y1
