@@ -285,7 +285,8 @@ def person_frame(t, xy, spread, free=False):
 def test_swinging_legs_confirm_a_person_only_with_gait_spread(gait_spread, confirmed):
     """A person detected where nothing walked in (no free space seen) and who stays within
     person_min_travel is confirmed only by legs whose separation swings by gait_spread."""
-    cfg = HypothesisConfig(gait_spread=gait_spread, person_confirm_samples=0)
+    cfg = HypothesisConfig(gait_spread=gait_spread, person_confirm_samples=0,
+                           person_confirm_pairs=0)
     tr = HypothesisTracker(cfg, KalmanConfig())
     for k in range(12):
         tr.update(person_frame(k * DT, (2.0 + 0.02 * k, 0.0), 0.2 if k % 2 else 0.35))
@@ -294,7 +295,7 @@ def test_swinging_legs_confirm_a_person_only_with_gait_spread(gait_spread, confi
 
 
 def test_legs_that_keep_their_separation_confirm_no_person_even_with_gait_spread():
-    cfg = HypothesisConfig(gait_spread=0.1, person_confirm_samples=0)
+    cfg = HypothesisConfig(gait_spread=0.1, person_confirm_samples=0, person_confirm_pairs=0)
     tr = HypothesisTracker(cfg, KalmanConfig())
     for k in range(12):
         tr.update(person_frame(k * DT, (2.0, 0.0), 0.3))
@@ -306,7 +307,8 @@ def test_a_person_detected_long_enough_is_confirmed_without_walking(confirm_samp
     """A person who stands in view from the start (never seen walking in, never travelling
     person_min_travel) is confirmed after person_confirm_samples supporting detections, not
     before; with 0 never."""
-    cfg = HypothesisConfig(gait_spread=0.0, person_confirm_samples=confirm_samples)
+    cfg = HypothesisConfig(gait_spread=0.0, person_confirm_samples=confirm_samples,
+                           person_confirm_pairs=0)
     tr = HypothesisTracker(cfg, KalmanConfig())
     confirmed_at = None
     for k in range(45):
@@ -493,6 +495,24 @@ def test_a_person_detection_starts_a_hypothesis_that_outlives_one_missed_scan(we
     assert len(tr.hyp) == 0
 
 
+@pytest.mark.parametrize('pairs, spread, confirmed_at', [(8, 0.25, 8), (0, 0.25, 30),
+                                                         (8, np.nan, 30)])
+def test_a_person_standing_in_view_is_confirmed_by_both_legs_seen(pairs, spread,
+                                                                  confirmed_at):
+    """Someone standing where the scans always saw them (not walked in) is confirmed after
+    ``person_confirm_pairs`` detections of two legs, or else ``person_confirm_samples``
+    detections (a lone post shows one leg)."""
+    tr = HypothesisTracker(HypothesisConfig(person_confirm_pairs=pairs), KalmanConfig())
+    first = None
+    for k in range(35):
+        d = people(k * DT, (2.0, 1.0), free=False)
+        d.people.spread = np.full(1, spread)
+        r = tr.update(d)
+        if first is None and r.hypotheses.confirmed.any():
+            first = k + 1
+    assert first == confirmed_at
+
+
 def test_new_parameters_reach_every_role_and_the_memory_stays():
     """reconfigure: the next frame runs under the new parameters; hypotheses, earlier frames
     (creation pairs) and ids are kept."""
@@ -512,7 +532,8 @@ def test_new_parameters_reach_every_role_and_the_memory_stays():
 def test_a_person_detection_that_is_not_finite_is_dropped_alone():
     """A NaN detection among others: the others keep their own flags (the one walking in
     is confirmed as such), no crash, no warning needed."""
-    tr = HypothesisTracker(HypothesisConfig(person_confirm_samples=0), KalmanConfig())
+    tr = HypothesisTracker(HypothesisConfig(person_confirm_samples=0, person_confirm_pairs=0),
+                           KalmanConfig())
     for k in range(8):
         d = frame(k * DT)
         d.people = People(xy=np.array([[np.nan, 1.0], [2.0, 1.0], [5.0, -3.0]]),

@@ -206,6 +206,12 @@ class HypothesisConfig:
         'who stands in view from the start (in front of a robot that follows them). Chair '
         'and table legs rarely stay detected that long from a moving robot. 0 = off.',
         min=0, max=100000)
+    person_confirm_pairs: int = param(
+        8, 'A hypothesis started by a person detection is also confirmed once this many '
+        'detections of two legs (a pair within person_detector.pair_distance) supported it: '
+        'a person standing in view shows both legs from most sides, so both legs seen about '
+        'a second long (8 scans at 7.5 Hz) confirm them, while a post or a single leg of '
+        'furniture shows one. 0 = off.', min=0, max=100000)
     gait_spread: float = param(
         0.0, 'A person whose two legs\' separation has varied by this much (m), off static '
         'background, is walking (the legs swing; chair or table legs keep their distance): '
@@ -366,6 +372,7 @@ def _exercise_kernels() -> None:
         association._claims(xy, xy, np.ones(n), mask, xy, 0.5, 0.5, 0.45)
         association._equation_3(r['weight'], r['samples'], np.ones(n), 60.0, 150.0)
         association._person_measured(r['weight'], r['samples'], r['person_samples'],
+                                     r['pair_samples'],
                                      r['spread'], r['origin'], xy, xy, mask, np.ones(n), 60.0,
                                      150.0, 0.25, 0.1)
         frame_kernels._into_frame(r['position'], 0.0, 0.0, 1.0, 0.0)

@@ -82,7 +82,8 @@ class PersonAssociation(Role):
         persons = frame.persons[which]
         self.filter.support(out, persons, frame.stamp)
         o = out.rows
-        _person_measured(o['weight'], o['samples'], o['person_samples'], o['spread'],
+        _person_measured(o['weight'], o['samples'], o['person_samples'], o['pair_samples'],
+                         o['spread'],
                          o['origin'], pred[rows], persons, frame.free[which],
                          frame.spread[which], c.w_inc, c.w_dec / c.distance_unit,
                          c.person_tolerance, c.gait_spread)
@@ -149,12 +150,13 @@ def _equation_3(weight, samples, d, w_inc, w_dec):
 
 
 @jit.kernel
-def _person_measured(weight, samples, person_samples, spread, origin, pred, persons, free,
+def _person_measured(weight, samples, person_samples, pair_samples, spread, origin, pred,
+                     persons, free,
                      seen, w_inc, w_dec, tolerance, gait):
     """Hypotheses (their fields, in place) predicted at ``pred`` and supported by person
     detections ``persons`` (walked in: ``free``; leg separation ``seen``, NaN: none): Eq. 3
     with the distance beyond ``tolerance`` (``w_dec`` per metre), one more sample of both
-    kinds, the least and largest separation seen, and walking (``PERSON_WALKED_IN``) once
+    kinds (and of two legs when ``seen``), the least and largest separation seen, and walking (``PERSON_WALKED_IN``) once
     walked in or the separation varied by ``gait`` (above 0)."""
     for i in range(weight.size):
         d = max(np.hypot(persons[i, 0] - pred[i, 0], persons[i, 1] - pred[i, 1]) - tolerance,
@@ -162,6 +164,8 @@ def _person_measured(weight, samples, person_samples, spread, origin, pred, pers
         weight[i] = min(max(weight[i] + w_inc - w_dec * d, 0.0), 100.0)
         samples[i] += 1
         person_samples[i] += 1
+        if seen[i] == seen[i]:
+            pair_samples[i] += 1
         least, largest = np.fmin(spread[i, 0], seen[i]), np.fmax(spread[i, 1], seen[i])
         spread[i, 0], spread[i, 1] = least, largest
         walks = free[i] or (gait > 0 and largest - least >= gait)

@@ -22,15 +22,19 @@ def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np
     something (chair and table legs look like legs) only once it has moved
     ``person_min_travel`` from where it started, both in the world (not clutter the robot
     passes) and in the scanner's frame (not something riding along with the robot); or once
-    ``person_confirm_samples`` detections supported it (someone standing in view from the
-    start). A detection standing in space seen free before (someone who walked in) or legs
-    whose separation swings (``gait_spread``) made it ``PERSON_WALKED_IN``: no restriction."""
+    ``person_confirm_samples`` detections, or ``person_confirm_pairs`` detections of two legs,
+    supported it (someone standing in view from the start). A detection standing in space
+    seen free before (someone who walked in), away from a place the scan sees left empty
+    (walked out) or legs whose separation swings (``gait_spread``) made it
+    ``PERSON_WALKED_IN``: no restriction."""
     h = candidates
     start = ((h.position - h.start) ** 2).sum(axis=1)
     local = ((frame.scanner.to_scanner(h.position) - h.start_local) ** 2).sum(axis=1)
     out = (h.origin != PERSON) | (np.minimum(start, local) >= c.person_min_travel ** 2)
     if c.person_confirm_samples > 0:
         out |= h.person_samples >= c.person_confirm_samples
+    if c.person_confirm_pairs > 0:
+        out |= h.pair_samples >= c.person_confirm_pairs
     return out
 
 

@@ -108,6 +108,7 @@ class Initiation(Role):
         if self.config.person_initial_weight > 0:
             out.weight = self.config.person_initial_weight
         out.person_samples = 1
+        out.pair_samples = ~np.isnan(spread)
         out.origin = np.where(free, PERSON_WALKED_IN, PERSON)
         out.spread = np.column_stack((spread, spread))
         return out

@@ -29,6 +29,7 @@ FIELDS = (
     ('start', np.float64, (2,)),      # where it was created (the later blob of its pair)
     ('start_local', np.float64, (2,)),  # ... in the scanner's frame of that moment
     ('person_samples', np.int64, ()),  # supports by person detections
+    ('pair_samples', np.int64, ()),   # ... of them by two legs
     ('spread', np.float64, (2,)),     # least and largest leg separation seen (NaN: none)
 )
 FLAGS = (
