@@ -495,18 +495,20 @@ def test_a_person_detection_starts_a_hypothesis_that_outlives_one_missed_scan(we
     assert len(tr.hyp) == 0
 
 
-@pytest.mark.parametrize('pairs, spread, confirmed_at', [(8, 0.25, 8), (0, 0.25, 30),
-                                                         (8, np.nan, 30)])
-def test_a_person_standing_in_view_is_confirmed_by_both_legs_seen(pairs, spread,
-                                                                  confirmed_at):
-    """Someone standing where the scans always saw them (not walked in) is confirmed after
-    ``person_confirm_pairs`` detections of two legs, or else ``person_confirm_samples``
-    detections (a lone post shows one leg)."""
+@pytest.mark.parametrize('pairs, spread, static, confirmed_at', [
+    (8, 0.25, False, 8), (0, 0.25, False, 30), (8, np.nan, False, 30), (8, 0.25, True, 30)])
+def test_a_person_in_view_is_confirmed_by_both_legs_seen(pairs, spread, static,
+                                                         confirmed_at):
+    """Someone in view where the scans always saw something (not walked in) is confirmed
+    after ``person_confirm_pairs`` detections of two legs off static background, or else
+    ``person_confirm_samples`` detections (a lone post shows one leg; a chair's legs have
+    long stood where they stand)."""
     tr = HypothesisTracker(HypothesisConfig(person_confirm_pairs=pairs), KalmanConfig())
     first = None
     for k in range(35):
         d = people(k * DT, (2.0, 1.0), free=False)
         d.people.spread = np.full(1, spread)
+        d.people.static = np.full(1, static)
         r = tr.update(d)
         if first is None and r.hypotheses.confirmed.any():
             first = k + 1
