@@ -19,7 +19,9 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
 * ``negative_2_left`` / ``_right`` / ``_rear``: leg_tracker's ``negative_2.bag``, one row per
   scanner: a robot driving 38 m with nobody in view, so every confirmed track is false; and
   ``..._inf``: the same scans with their no-return readings (0 and codes below ``range_min``)
-  written as +inf, as REP 117 drivers write them;
+  written as +inf, as REP 117 drivers write them; ``..._unseen``: the recorded scans with a
+  person detector trained without that scanner (the shipped one was trained on all three:
+  clutter it has not seen);
 * ``leg_scenes`` (and ``leg_scenes_inf``, no-return readings as +inf): leg_tracker's six
   leg-labelled training recordings replayed as scenes (``tools.leg_scenes``): CLEAR MOT over
   the people of the labelled legs, pooled over the six, each replayed with a person detector
@@ -50,7 +52,8 @@ MODES = ('paper', 'motion', 'defaults')
 NEGATIVE_SCANNERS = ('left', 'right', 'rear')
 RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_csail',
               'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
-                                  for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
+                                  for s in NEGATIVE_SCANNERS) + tuple(
+    f'negative_2_{s}_unseen' for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
 #: The counts of CLEAR MOT that pool over the parts of a recording made of several scenes.
 POOLED = ('objects', 'misses', 'fp', 'switches', 'walking_objects', 'walking_misses',
           'walking_fp', 'walking_switches', 'confirmed', 'scans', 'outside_area')
@@ -131,6 +134,22 @@ def _recordings(work: Path) -> dict:
         for s, topic in zip(NEGATIVE_SCANNERS, topics):
             found[f'negative_2_{s}'] = (negative, topic, 'negative')
             found[f'negative_2_{s}_inf'] = (inf, topic, 'negative')
+    return found
+
+
+def _unseen_negatives(names, with_detector: bool) -> dict:
+    """name -> (negative_2, scanner topic, extras: a detector trained without that scanner)
+    for the ``negative_2_*_unseen`` rows asked for."""
+    from laser_tracker.tools import leg_scenes
+
+    negative = real_recording('leg_tracker/training/negative_2.bag')
+    found = {}
+    for s in NEGATIVE_SCANNERS:
+        name = f'negative_2_{s}_unseen'
+        if name in names and negative.exists() and leg_scenes.positive_recordings():
+            extra = {'model': str(leg_scenes.held_out_model(negative_topic=f'/{s}_scan'))} \
+                if with_detector else {}
+            found[name] = (negative, f'/{s}_scan', extra)
     return found
 
 
@@ -264,9 +283,12 @@ def run(args: argparse.Namespace) -> int:
         names = args.only or list(RECORDINGS)
         found = {n: [(bag, topic, scoring, None)]
                  for n, (bag, topic, scoring) in _recordings(work).items()}
-        scenes = _leg_scenes(work, names, any(m != 'paper' for m in modes))
+        detector = any(m != 'paper' for m in modes)
+        scenes = _leg_scenes(work, names, detector)
         found.update({n: [(bag, '/scan', 'scene', extra) for bag, extra in parts]
                       for n, parts in scenes.items()})
+        found.update({n: [(bag, topic, 'negative', extra)]
+                      for n, (bag, topic, extra) in _unseen_negatives(names, detector).items()})
         jobs = []
         for name in names:
             if name not in found:

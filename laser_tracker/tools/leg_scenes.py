@@ -22,7 +22,8 @@ evaluate`` scores (CLEAR MOT, README.md "Replay and evaluate offline"):
 
 The detector must not have been trained on the scene it is scored on: :func:`held_out_model`
 trains one model per scene on every other positive recording and the negatives, as the
-shipped model was trained (``laser-tracker train-detector``), and caches it.
+shipped model was trained (``laser-tracker train-detector``), and caches it; likewise a
+model without one scanner of the negative recording, for clutter the detector has not seen.
 """
 from __future__ import annotations
 
@@ -165,29 +166,42 @@ def positive_recordings() -> list[Path]:
     return [Path(p) for p in sorted(glob.glob(str(real_recording(POSITIVE_GLOB))))]
 
 
-def held_out_model(scene: Path, cache: Path | None = None) -> Path:
-    """A person detector model trained as the shipped one but without ``scene`` (every
-    other positive recording, and the negatives), cached in ``cache`` (default: the user's
-    cache folder) under a key of the training code and data, so that it is trained once."""
-    from laser_tracker.tools.cli import main as cli_main
-    from laser_tracker.tools.train_detector import DEFAULT_NEGATIVE
-    from laser_tracker.tools.data import real_recording
+def held_out_model(scene: Path | None = None, negative_topic: str | None = None,
+                   cache: Path | None = None) -> Path:
+    """A person detector model trained as the shipped one but without the positive
+    recording ``scene``, or without the scanner ``negative_topic`` of the negative recording
+    (every other recording and topic used), cached in ``cache`` (default: the user's cache
+    folder) under a key of the training code and data, so that it is trained once."""
+    import contextlib
+    import io
 
-    others = [p for p in positive_recordings() if p.name != scene.name]
+    from laser_tracker.tools.bag import scan_topics
+    from laser_tracker.tools.cli import main as cli_main
+    from laser_tracker.tools.data import real_recording
+    from laser_tracker.tools.import_bag import import_bag
+    from laser_tracker.tools.train_detector import DEFAULT_NEGATIVE
+
+    positives = [p for p in positive_recordings() if scene is None or p.name != scene.name]
     negative = real_recording(DEFAULT_NEGATIVE)
     folder = Path(cache) if cache else _cache_folder()
     folder.mkdir(parents=True, exist_ok=True)
-    out = folder / f'legs_without_{scene.stem}_{_training_key(others + [negative])}.npz'
-    if not out.exists():
-        args = ['train-detector', *TRAINING_ARGS, '--output', str(out),
-                '--negative', str(negative)]
-        for p in others:
-            args += ['--positive', str(p)]
-        log.info('training a person detector without %s (once): %s', scene.name, out)
-        import contextlib
-        import io
-        with contextlib.redirect_stdout(io.StringIO()):
-            cli_main(args)
+    key = _training_key(positives + [negative], negative_topic)
+    without = scene.stem if scene is not None else negative_topic.strip('/')
+    out = folder / f'legs_without_{without}_{key}.npz'
+    if out.exists():
+        return out
+    if negative_topic is not None:
+        kept = [t for t in scan_topics(negative) if t != negative_topic]
+        copy = folder / f'negative_without_{without}_{key}'
+        if not copy.exists():
+            import_bag(negative, copy, kept)
+        negative = copy
+    args = ['train-detector', *TRAINING_ARGS, '--output', str(out), '--negative', str(negative)]
+    for p in positives:
+        args += ['--positive', str(p)]
+    log.info('training a person detector without %s (once): %s', without, out)
+    with contextlib.redirect_stdout(io.StringIO()):
+        cli_main(args)
     return out
 
 
@@ -196,9 +210,9 @@ def _cache_folder() -> Path:
     return Path(base) / 'laser_tracker' / 'held_out_models'
 
 
-def _training_key(recordings: list[Path]) -> str:
+def _training_key(recordings: list[Path], without_topic: str | None = None) -> str:
     """A hash of what a trained model depends on: the training, feature and classifier code,
-    the training arguments and the recordings (names and sizes)."""
+    the training arguments, the recordings (names and sizes) and a topic left out."""
     import laser_tracker.core.person_detector as detector
     import laser_tracker.core.segmentation as segmentation
     import laser_tracker.tools.train_detector as train
@@ -209,4 +223,5 @@ def _training_key(recordings: list[Path]) -> str:
     h.update(repr(TRAINING_ARGS).encode())
     for p in recordings:
         h.update(f'{p.name}:{p.stat().st_size}'.encode())
+    h.update(repr(without_topic).encode())
     return h.hexdigest()[:12]
