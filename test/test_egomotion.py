@@ -637,8 +637,9 @@ def test_fixed_prior_keeps_the_configured_model():
     est, out, truth = _room_run(poor_odometry, cfg, n=40)
     s = cast(ROOM, (0.0, 0.0, 0.0), stamp=100.0)
     s.ranges[:] = np.inf
-    est.add_odometry(100.0, compose(est._odo[0], (0.1, 0.0, 0.0)))
-    est.add_odometry(99.9, est._odo[0])
+    last = est.odometry.pose_at(0.2 * 39)[0]          # the odometry of the last scan
+    est.add_odometry(100.0, compose(last, (0.1, 0.0, 0.0)))
+    est.add_odometry(99.9, last)
     e = est.update(s)
     # too few points, no match tried: odometry with its fixed covariance (1 cm + 5 %/m)
     assert e.source == SOURCE_ODOMETRY and not pose_quality(e).failed

@@ -32,7 +32,6 @@ Hessian is for that parametrisation.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +50,9 @@ _KERNEL_RATIO, _STEPS, _TOL_T, _TOL_R, _DAMPING, _CONV_T, _CONV_R, _STRIDE, _N_C
 _NX, _NY, _NQ = 2, 3, 4
 #: Grid description layout: origin, 1 / cell, cell, cells along x and y, hash mask.
 _OX, _OY, _INV, _SIZE, _NCX, _NCY, _MASK = range(7)
+#: A local map's state (int64): its rows, its scans, the most scans it keeps, and from
+#: ``_SIZES`` on each scan's rows, oldest first.
+_ROWS, _SCANS, _MOST, _SIZES = range(4)
 
 
 # ------------------------------------------------------------------------------ kernels
@@ -110,16 +112,33 @@ def _linked(points, i, dx, dy, near, max_gap, gap_ratio):
 
 
 @jit.kernel
-def _add_scan(points, pose, max_gap, gap_ratio, rows, keep_from, cell):
-    """``rows[keep_from:]`` plus the world rows (x, y, nx, ny, n.q) of ``points`` seen from
-    ``pose`` that have a normal; and the grid hash over them (sorted rows, their indices,
-    bucket starts, grid description)."""
+def _add_scan(points, pose, max_gap, gap_ratio, cell, rows, grid_rows, order, start, grid,
+              state):
+    """In place on a local map's buffers (:meth:`LocalMap.buffers`; ``state``: rows, scans,
+    most scans, each scan's rows oldest first): the world rows (x, y, nx, ny, n.q) of
+    ``points`` seen from ``pose`` that have a normal join the map (the oldest scan leaves when
+    there are ``state[2]`` scans), and the grid hash is rebuilt; none with a normal: the map
+    stays as it is. Returns the rows added. The buffers hold the map's rows and these."""
     normals, ok = _normals(points, max_gap, gap_ratio)
+    added = 0
+    for i in range(points.shape[0]):
+        added += ok[i]
+    if added == 0:
+        return 0
+    n_rows, n_scans = state[_ROWS], state[_SCANS]
+    keep_from = 0
+    if n_scans == state[_MOST]:               # the oldest scan leaves
+        keep_from = state[_SIZES]
+        for k in range(n_scans - 1):
+            state[_SIZES + k] = state[_SIZES + k + 1]
+        n_scans -= 1
+    n_old = n_rows - keep_from
+    if n_old + added > rows.shape[0]:
+        raise ValueError('local map buffers too small (LocalMap.reserve)')
+    for i in range(n_old):
+        for c in range(5):
+            rows[i, c] = rows[keep_from + i, c]
     c, s = math.cos(pose[2]), math.sin(pose[2])
-    n_old = rows.shape[0] - keep_from
-    n = n_old + int(ok.sum())
-    out = np.empty((n, 5))
-    out[:n_old] = rows[keep_from:]
     k = n_old
     for i in range(points.shape[0]):
         if ok[i]:
@@ -129,21 +148,35 @@ def _add_scan(points, pose, max_gap, gap_ratio, rows, keep_from, cell):
             qy = fma(py, c, px * s) + pose[1]
             wx = fma(ny, -s, nx * c)
             wy = fma(ny, c, nx * s)
-            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = qx, qy, wx, wy
-            out[k, 4] = wx * qx + wy * qy
+            rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3] = qx, qy, wx, wy
+            rows[k, 4] = wx * qx + wy * qy
             k += 1
-    sorted_rows, order, start, grid = _grid_hash(out, cell)
-    return out, sorted_rows, order, start, grid
+    state[_SIZES + n_scans] = added
+    state[_SCANS] = n_scans + 1
+    state[_ROWS] = k
+    _grid_hash(rows, k, cell, grid_rows, order, start, grid)
+    return added
+
+
+@jit.inline
+def _hash_size(n):
+    """Buckets of the grid hash of ``n`` rows: a power of two, at least 16 and 2 n."""
+    size = 16
+    while size < 2 * n:
+        size *= 2
+    return size
 
 
 @jit.kernel
-def _grid_hash(rows, cell):
-    """The rows sorted by hash bucket of their grid cell, their indices in ``rows``, the
-    buckets' starts, and the grid (origin, 1 / cell, cell, cells along x and y, hash mask)."""
-    n = rows.shape[0]
-    grid = np.zeros(7)
+def _grid_hash(rows, n, cell, sorted_rows, order, start, grid):
+    """The grid hash of ``rows[:n]``, into the buffers: the rows sorted by hash bucket of
+    their grid cell (``sorted_rows[:n]``), their indices in ``rows`` (``order[:n]``), the
+    buckets' starts (``start[:size + 1]``), and the grid (origin, 1 / cell, cell, cells
+    along x and y, hash mask)."""
+    grid[:] = 0.0
     if n == 0:
-        return rows.copy(), np.zeros(0, np.int64), np.zeros(2, np.int64), grid
+        start[0] = start[1] = 0
+        return
     ox, oy = rows[0, 0], rows[0, 1]
     hx, hy = ox, oy
     for i in range(n):
@@ -152,31 +185,26 @@ def _grid_hash(rows, cell):
         hx = max(hx, rows[i, 0])
         hy = max(hy, rows[i, 1])
     inv = 1.0 / cell
-    size = 16
-    while size < 2 * n:
-        size *= 2
+    size = _hash_size(n)
     grid[_OX], grid[_OY], grid[_INV], grid[_SIZE] = ox, oy, inv, cell
     grid[_NCX] = int((hx - ox) * inv) + 1
     grid[_NCY] = int((hy - oy) * inv) + 1
     grid[_MASK] = size - 1
     bucket = np.empty(n, np.int64)
-    start = np.zeros(size + 1, np.int64)
+    start[:size + 1] = 0
     for i in range(n):
         b = _bucket(int((rows[i, 0] - ox) * inv), int((rows[i, 1] - oy) * inv), size - 1)
         bucket[i] = b
         start[b + 1] += 1
     for b in range(size):
         start[b + 1] += start[b]
-    fill = start[:-1].copy()
-    sorted_rows = np.empty((n, 5))
-    order = np.empty(n, np.int64)
+    fill = start[:size].copy()
     for i in range(n):
         k = fill[bucket[i]]
         fill[bucket[i]] += 1
         order[k] = i
         for c in range(5):
             sorted_rows[k, c] = rows[i, c]
-    return sorted_rows, order, start, grid
 
 
 @jit.kernel
@@ -728,50 +756,71 @@ def scan_normals(points: np.ndarray, max_gap: float = 0.3,
 
 class LocalMap:
     """Points and normals of the last ``max_scans`` key scans in the world frame, with the
-    grid hash of :func:`align`'s neighbour search (rebuilt when a scan joins)."""
+    grid hash of :func:`align`'s neighbour search (rebuilt when a scan joins), in buffers
+    that kernels update in place (:attr:`buffers`; :meth:`reserve` makes room first)."""
 
-    def __init__(self, max_scans: int, max_gap: float = 0.3, gap_ratio: float = 0.05):
+    def __init__(self, max_scans: int, max_gap: float = 0.3, gap_ratio: float = 0.05,
+                 capacity: int = 1024):
         self.max_scans = int(max_scans)
         self.max_gap, self.gap_ratio = float(max_gap), float(gap_ratio)
-        self._sizes: deque = deque()
-        self.clear()
+        self.state = np.zeros(_SIZES + self.max_scans, np.int64)
+        self.state[_MOST] = self.max_scans
+        self.buffers = ()
+        self._allocate(max(int(capacity), 16))
+
+    def _allocate(self, capacity: int) -> None:
+        """Buffers for ``capacity`` rows, holding what the map has."""
+        n = self.n_points
+        old = self.arrays if n else None
+        rows, grid_rows = np.zeros((capacity, 5)), np.zeros((capacity, 5))
+        order = np.zeros(capacity, np.int64)
+        start = np.zeros(_hash_size(capacity) + 1, np.int64)
+        grid = np.zeros(7)
+        if old is not None:
+            rows[:n], grid_rows[:n], order[:n] = old[0], old[1], old[2]
+            start[:old[3].size], grid[:] = old[3], old[4]
+        #: what the kernels read and write: the rows (oldest scan first), the rows in grid
+        #: order and their indices in the rows, bucket starts, the grid, :attr:`state`
+        self.buffers = (rows, grid_rows, order, start, grid, self.state)
+
+    def reserve(self, extra: int) -> None:
+        """Room for ``extra`` more rows."""
+        need = self.n_points + int(extra)
+        if need > self.buffers[0].shape[0]:
+            self._allocate(max(need, 2 * self.buffers[0].shape[0]))
+
+    @property
+    def arrays(self) -> tuple:
+        """The map as :func:`align` reads it: the rows, the rows in grid order and their
+        indices in the rows, bucket starts, the grid (views of the buffers)."""
+        rows, grid_rows, order, start, grid, _ = self.buffers
+        n = self.n_points
+        return rows[:n], grid_rows[:n], order[:n], start[:int(grid[_MASK]) + 2], grid
 
     @property
     def rows(self) -> np.ndarray:
         """(N, 5): x, y, nx, ny, n . (x, y) per map point, oldest scan first."""
-        return self.arrays[0]
+        return self.buffers[0][:self.n_points]
 
     @property
     def n_scans(self) -> int:
-        return len(self._sizes)
+        return int(self.state[_SCANS])
 
     @property
     def n_points(self) -> int:
-        return self.rows.shape[0]
+        return int(self.state[_ROWS])
 
     def clear(self) -> None:
-        self._sizes.clear()
-        empty = np.zeros((0, 5))
-        #: what the kernels read: the rows, the rows in grid order and their indices in
-        #: the rows, bucket starts, the grid
-        self.arrays = (empty, empty, np.zeros(0, np.int64), np.zeros(2, np.int64),
-                       np.zeros(7))
+        self.state[_ROWS] = self.state[_SCANS] = 0
+        _grid_hash(self.buffers[0], 0, CELL, *self.buffers[1:5])
 
     def add_scan(self, pose, points: np.ndarray) -> None:
         """One scan's points (scanner frame, beam order) seen from ``pose`` (world): those
         with a normal join; the oldest scan leaves when there are ``max_scans``."""
-        full = len(self._sizes) == self.max_scans
-        keep_from = self._sizes[0] if full else 0
-        arrays = _add_scan(np.ascontiguousarray(points, dtype=float),
-                           np.asarray(pose, dtype=float), self.max_gap, self.gap_ratio,
-                           self.rows, keep_from, CELL)
-        added = arrays[0].shape[0] - (self.n_points - keep_from)
-        if not added:             # no point with a normal: the map stays as it is
-            return
-        if full:
-            self._sizes.popleft()
-        self._sizes.append(added)
-        self.arrays = arrays
+        points = np.ascontiguousarray(points, dtype=float)
+        self.reserve(points.shape[0])
+        _add_scan(points, np.asarray(pose, dtype=float), self.max_gap, self.gap_ratio, CELL,
+                  *self.buffers)
 
 
 @dataclass
@@ -899,6 +948,8 @@ def warm_up() -> None:
         schedule = Schedule.of()
         pts, _ = match_scan(ranges, cos, sin, 0.0, 10.0, 0.0, 10.0, 100, 3, local, None,
                             schedule)
+        local.add_scan(np.zeros(3), pts)
+        local.clear()
         local.add_scan(np.zeros(3), pts)
         match_scan(ranges, cos, sin, 0.0, 10.0, 0.0, 10.0, 100, 3, local, np.zeros(3),
                    schedule)

@@ -42,9 +42,7 @@ from laser_tracker.core.detections import Blobs, Detections, People, Segments
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map,
                                            people_in_odometry, pose_quality, pose_trusted)
-from laser_tracker.core.egomotion import (SOURCE_ICP, SOURCE_ODOMETRY, SOURCE_PARTIAL,
-                                          EgoMotionConfig, EgoMotionEstimate,
-                                          EgoMotionEstimator)
+from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, EgoMotionEstimator
 from laser_tracker.core.grid import (GridBuilder, GridConfig, GridHistory, relative_motion,
                                      transform_grid)
 from laser_tracker.core.head import HeadCommand, HeadConfig, HeadPointer
@@ -63,12 +61,6 @@ log = logging.getLogger(__name__)
 
 #: Scan points this close (m) to a motion blob do not join the static background.
 MOVER_RADIUS = 0.4
-#: Ego-motion sources whose motion is measured (matched or odometry), which the self-mask
-#: learns from (the odometry increment when there is one: the scan match itself may be
-#: pulled towards standing still by the body it has not learnt yet): a guessed motion (the
-#: constant-velocity model while a standing robot's matches are refused) would make anything
-#: that stands in front of it look like its body.
-MEASURED_MOTION = (SOURCE_ICP, SOURCE_PARTIAL, SOURCE_ODOMETRY)
 
 
 # ------------------------------------------------------------------------------ ego-motion
@@ -122,11 +114,10 @@ class EgoMotion:
         self.self_mask = self._new_self_mask(self_mask or SelfMaskConfig())
         self.frame_id = frame_id
         self.events = EventLog(log, 'ego-motion: ')
-        self.estimator = EgoMotionEstimator(self.config)
+        self.estimator = EgoMotionEstimator(self.config, self.self_mask)
         self.rules = StreamRules()
         self.wait: OdometryWait = OdometryWait(odom_wait)
         self.sources: dict[str, int] = {}
-        self._pose_cov = np.zeros((3, 3))
         self._restart_pending = False
         self.skipped: str | None = None     # why the last update returned None
 
@@ -168,7 +159,6 @@ class EgoMotion:
             self.events.note('restart', reason)
         self.estimator.reset(reason or 'reset requested')
         self.rules.reset()
-        self._pose_cov = np.zeros((3, 3))
         self._restart_pending = True
 
     def _new_self_mask(self, config: SelfMaskConfig) -> SelfMask:
@@ -185,12 +175,12 @@ class EgoMotion:
         changed = config != self.config
         if self_mask is not None and (changed or self_mask != self.self_mask.config):
             self.config = config
-            self.self_mask = self._new_self_mask(self_mask)
+            self.self_mask = self.estimator.self_mask = self._new_self_mask(self_mask)
         if not changed:
             return
         odometry = self.estimator.odometry
         self.config = config
-        self.estimator = EgoMotionEstimator(config)
+        self.estimator = EgoMotionEstimator(config, self.self_mask)
         self.estimator.odometry = odometry
         odometry.config = config
         self.reset('parameters changed')
@@ -205,40 +195,27 @@ class EgoMotion:
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
-        left_out = self.self_mask.left_out(scan)   # the body, learnt or probable; mixed returns
-        body = self.self_mask.masked_ranges
-        est = self.estimator.update(scan, left_out)
-        self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
-        pose = np.asarray(est.pose, dtype=float)
-        x, y, theta = pose.tolist()
+        # the body is masked, the scan matched and the body learnt in one kernel call
+        est = self.estimator.update(scan)
+        source = str(est.source)
+        self.sources[source] = self.sources.get(source, 0) + 1
+        x, y, theta = est.pose.tolist()
         if not (est.ok and math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
             self.skipped = 'no pose: ' + _generic(est.reason)
             self.events.note('no pose', _generic(est.reason))
             return None
         self.rules.accept(scan.stamp)
-        if est.odometry_motion is not None:      # the wheels' word, independent of the scan
-            self.self_mask.learn(scan, est.odometry_motion)
-        elif est.source in MEASURED_MOTION:      # not a guess (constant velocity, first scan)
-            self.self_mask.learn(scan, est.motion)
         quality = pose_quality(est)
         if self._restart_pending:
             quality = PoseQuality(quality.variance, quality.unmatched, True)
             self._restart_pending = False
-        motion = np.asarray(est.motion, dtype=float)
-        cov = np.asarray(est.covariance, dtype=float)
-        if quality.restarted or not np.isfinite(cov).all():
-            self._pose_cov = np.zeros((3, 3)) if quality.restarted else self._pose_cov
-        else:
-            turn = theta - float(motion[2])          # the previous scanner's heading
-            c, s = math.cos(turn), math.sin(turn)
-            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            self._pose_cov = self._pose_cov + rot @ cov @ rot.T
-        return StampedPose(stamp=float(scan.stamp), pose=pose, motion=motion,
-                           motion_covariance=cov, pose_covariance=self._pose_cov.copy(),
-                           quality=quality, source=str(est.source), reason=str(est.reason),
-                           dt=float(est.dt), frame_id=self.frame_id,
-                           child_frame_id=scan.frame_id, stamp_ns=scan.stamp_ns,
-                           estimate=est, body=body if np.isfinite(body).any() else None)
+        return StampedPose(stamp=float(scan.stamp), pose=est.pose, motion=est.motion,
+                           motion_covariance=est.covariance,
+                           pose_covariance=est.pose_covariance, quality=quality,
+                           source=source, reason=str(est.reason), dt=float(est.dt),
+                           frame_id=self.frame_id, child_frame_id=scan.frame_id,
+                           stamp_ns=scan.stamp_ns, estimate=est,
+                           body=self.self_mask.applied)
 
 
 # ------------------------------------------------------------------------------- detection
