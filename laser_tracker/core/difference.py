@@ -59,6 +59,7 @@ what the gate reads; between the nodes it travels on ``ego_motion/status`` besid
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -167,7 +168,8 @@ class PoseQuality:
     @property
     def failed(self) -> bool:
         """True when the pose is not a trusted estimate (a non-finite value counts)."""
-        return not all(v < FAILED_VARIANCE for v in self.variance)
+        x, y, theta = self.variance
+        return not (x < FAILED_VARIANCE and y < FAILED_VARIANCE and theta < FAILED_VARIANCE)
 
 
 def pose_quality(estimate) -> PoseQuality:
@@ -191,10 +193,13 @@ def pose_quality(estimate) -> PoseQuality:
     if coasting and (tried or source != SOURCE_ODOMETRY):
         return PoseQuality((FAILED_VARIANCE,) * 3, unmatched)
     cov = estimate.covariance
-    try:
-        var = (float(cov[0][0]), float(cov[1][1]), float(cov[2][2]))
-    except (TypeError, IndexError, ValueError):
-        var = (FAILED_VARIANCE,) * 3
+    if type(cov) is np.ndarray and cov.shape == (3, 3):
+        var = (float(cov.item(0)), float(cov.item(4)), float(cov.item(8)))
+    else:
+        try:
+            var = (float(cov[0][0]), float(cov[1][1]), float(cov[2][2]))
+        except (TypeError, IndexError, ValueError):
+            var = (FAILED_VARIANCE,) * 3
     return PoseQuality(var, unmatched)
 
 
@@ -421,8 +426,9 @@ def _background_add(points, pose, movers, radius, key, count, last, settings, st
     for r in range(n):
         near = False
         for b in range(local.shape[0]):
-            dx, dy = points[r, 0] - local[b, 0], points[r, 1] - local[b, 1]
-            near |= math.sqrt(dx * dx + dy * dy) <= radius
+            if _within(points[r, 0] - local[b, 0], points[r, 1] - local[b, 1], radius):
+                near = True
+                break
         if near:
             continue
         x, y = _to_world(pose, points[r, 0], points[r, 1])
@@ -430,14 +436,33 @@ def _background_add(points, pose, movers, radius, key, count, last, settings, st
         j = np.int64(math.floor(y * settings[_INV]))
         slot = ((i & mask) << bits) | (j & mask)
         keys[k], slots[k] = (i << 32) + j, slot
-        # Several points of one cell write the same value: each cell counts once.
-        values[k] = (count[slot] * math.exp((last[slot] - stamp) / settings[_TAU])
-                     if key[slot] == keys[k] else 0.0) + step
+        # Several points of one cell write the same value: each cell counts once (the
+        # neighbour along the scan in the same cell has computed it).
+        if k and slots[k - 1] == slot and keys[k - 1] == keys[k]:
+            values[k] = values[k - 1]
+        else:
+            values[k] = (count[slot] * math.exp((last[slot] - stamp) / settings[_TAU])
+                         if key[slot] == keys[k] else 0.0) + step
         k += 1
     for r in range(k):
         key[slots[r]] = keys[r]
         count[slots[r]] = values[r]
         last[slots[r]] = stamp
+
+
+@jit.inline
+def _within(dx, dy, limit):
+    """``math.sqrt(dx * dx + dy * dy) <= limit``: the squares decide unless within a relative
+    1e-9 of the limit's square (far above their rounding errors), where the square root
+    does."""
+    d2 = dx * dx + dy * dy
+    if 1e-100 < limit < 1e100:
+        l2 = limit * limit
+        if d2 < l2 * (1.0 - 1e-9):
+            return True
+        if d2 > l2 * (1.0 + 1e-9):
+            return False
+    return math.sqrt(d2) <= limit
 
 
 def changed_with_history(frame, stamp: float, pose, history: GridHistory,
@@ -477,7 +502,9 @@ def people_in_odometry(people, pose, stamp: float, history: GridHistory,
                    float(motion_depth), *bg)
 
 
+@functools.lru_cache(maxsize=8)
 def _settings(config: DifferenceConfig, resolution: float) -> np.ndarray:
+    """The kernels' settings of ``config`` (one array per configuration)."""
     return np.array([config.free_window, config.memory, config.free_neighbourhood,
                      config.motion_depth, resolution])
 

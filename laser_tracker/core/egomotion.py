@@ -382,10 +382,12 @@ class OdometryBuffer:
         return 'odometry out of order', 'odometry out of order (inserted in time order)'
 
     def trim(self, before: float) -> None:
-        """Forget samples older than ``before`` (keeping one for interpolation)."""
-        i = bisect.bisect_left(self._t, before) - 1
-        if i > 64:
-            del self._t[:i], self._p[:i], self._seg[:i]
+        """Forget samples older than ``before`` (keeping one for interpolation), once more
+        than 64 are."""
+        ts = self._t
+        if len(ts) > 65 and ts[65] < before:
+            i = bisect.bisect_left(ts, before) - 1
+            del ts[:i], self._p[:i], self._seg[:i]
 
     def at_scan(self, t: float) -> tuple[tuple[float, float, float] | None, int, str]:
         """:meth:`pose_at` for a scan stamped ``t``: read at ``t + odom_latency`` (the
@@ -1385,6 +1387,12 @@ class EgoMotionEstimator:
     def add_odometry(self, stamp: float, pose) -> None:
         """Feed one odometry sample (platform pose ``x, y, theta`` in the odometry frame)."""
         note = self.odometry.add(stamp, pose)
+        if note:
+            self._note(*note)
+
+    def add_finite_odometry(self, t: float, x: float, y: float, theta: float) -> None:
+        """:meth:`add_odometry` of a sample known to be four finite floats."""
+        note = self.odometry.add_finite(t, x, y, theta)
         if note:
             self._note(*note)
 

@@ -338,11 +338,20 @@ def _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free):
 
 
 @jit.kernel
-def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free, occupied):
+def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free, occupied,
+           marks, meta, about):
     """One scan's grid: ``free[:n]`` (float32) the free range of every beam, ``free[n]`` = -1
     (the ray table's "no beam"), its end points' cells marked OCCUPIED in ``occupied`` (the
-    padded buffer, flat). Returns the end points inside the grid (beam order, scanner
-    frame), their cell indices (float) and flat indices (unpadded grid, then padded)."""
+    padded buffer, flat; first cleared: the cells ``marks`` of its previous grid, or all
+    when ``marks`` is empty), and ``about`` (pose, stamp, beam geometry) into ``meta``.
+    Returns the end points inside the grid (beam order, scanner frame), their cell indices
+    (float) and flat indices (unpadded grid, then padded)."""
+    if marks.size:
+        for p in marks:
+            occupied[p] = UNKNOWN
+    else:
+        occupied[:] = UNKNOWN
+    meta[:] = about
     n = r.size
     res = settings[_RES]
     nv = 0
@@ -591,21 +600,18 @@ class GridBuilder:
             self.free = wider
         index = self._which
         self._which = (index + 1) % self.stack.shape[0]
-        buffer = self._flat_stack[index]
         marks = self._marks[index]
-        if marks is None:
-            buffer.fill(UNKNOWN)
-        else:
-            buffer[marks] = UNKNOWN
-        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)
+        angle_min, increment = float(scan.angle_min), float(scan.angle_increment)
+        _, cos, sin = beam_table(angle_min, increment, beams)
         free = self.free[index]
-        pts, ij, flat, marks = _build(scan.ranges, cos, sin, max(scan.range_min, 1e-6),
-                                      float(scan.range_max),
-                                      min(c.no_return_free, scan.range_max), self.settings,
-                                      self.cells, self.echo, free, buffer)
+        x, y, theta = pose
+        pts, ij, flat, marks = _build(
+            scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+            min(c.no_return_free, scan.range_max), self.settings, self.cells, self.echo, free,
+            self._flat_stack[index], _NO_MARKS if marks is None else marks, self.meta[index],
+            np.array([x, y, theta, scan.stamp, angle_min, increment, beams], dtype=float))
         self._marks[index] = marks
         self.lazy[index] = True
-        self.meta[index] = (*pose, scan.stamp, scan.angle_min, scan.angle_increment, beams)
         return GridFrame(builder=self, index=index, points=pts, ij=ij, flat=flat,
                          free=free[:beams], angle_min=float(scan.angle_min),
                          angle_increment=float(scan.angle_increment))
@@ -634,7 +640,10 @@ class GridHistory:
 
     def push(self, frame: GridFrame) -> None:
         self.frames.appendleft(frame)
-        self.order = np.array([f.index for f in self.frames], np.intp)
+        order = np.empty(len(self.frames), np.intp)
+        order[0] = frame.index
+        order[1:] = self.order[:order.size - 1]
+        self.order = order
 
     def clear(self) -> None:
         self.frames.clear()
@@ -706,6 +715,8 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 
 
 # Stand-ins for a whole grid's lookups (no ray table), typed as the builder's arrays.
+#: ``_build``'s ``marks`` of a buffer without (clear all of it); writable, as marks are.
+_NO_MARKS = np.zeros(0, np.intp)
 _NO_BEAM = _read_only(np.zeros(1, np.intp))
 _NO_REACH = _read_only(np.full(1, np.inf, np.float32))
 _NO_FREE = np.zeros((1, 1), np.float32)

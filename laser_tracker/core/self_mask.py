@@ -384,6 +384,20 @@ def _left_out(r, body_ranges, anchor, kept, body, tolerance, provisional, range_
                     masked_ranges[k] = r[k]
 
 
+@jit.kernel
+def without_body(ranges, body, out):
+    """``ranges`` into ``out`` with the returns up to ``body`` (per beam; NaN: none) as NaN
+    (detection's view of a scan, ``StampedPose.body``); True when any beam is masked."""
+    masked = False
+    for k in range(ranges.size):
+        if ranges[k] <= body[k]:
+            out[k] = np.nan
+            masked = True
+        else:
+            out[k] = ranges[k]
+    return masked
+
+
 def mixed_returns(scan: Scan, beam_width: float) -> np.ndarray:
     """Beams of ``scan`` partly blocked by a nearer edge (see the module docstring)."""
     out = np.zeros(scan.n_beams, np.bool_)
@@ -535,3 +549,4 @@ def _exercise_learn() -> None:
                np.empty(41, np.bool_))
     ranges[20:] = 5.0
     _mixed(ranges, 0.01, 10.0, 0.075, 0.03, EDGE_JUMP, np.zeros(41, np.bool_))
+    without_body(ranges, state[RANGES], np.empty(41))

@@ -53,7 +53,7 @@ from laser_tracker.core.person_detector import (DetectorModelError, LegClassifie
                                                 PersonDetectorConfig)
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig, segments_of
-from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
+from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig, without_body
 from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, EventLog, OdometryWait,
                                        StreamRules)
 
@@ -130,7 +130,7 @@ class EgoMotion:
             self.events.note('odometry skipped', f'not a finite planar pose: {stamp!r}, '
                              f'{list(xyt) if xyt else np.asarray(pose).tolist()!r}')
             return []
-        self.estimator.add_odometry(float(stamp), xyt)
+        self.estimator.add_finite_odometry(float(stamp), *xyt)
         if arrival is None:
             return []
         return self._estimate_all(self.wait.add_odometry(arrival, float(stamp)))
@@ -569,6 +569,7 @@ def _exercise_detection() -> None:
                     range_min=0.05, range_max=8.0)
         pose.stamp = scan.stamp
         detector.update(scan, pose, want_grids=k == 2)
+    _without_body(scan, np.full(scan.n_beams, 2.0))
     frame = detector.history[0]
     segment(np.unique(frame.flat), detector.builder.cells, detector.grid_config.resolution,
             pose.pose, pose.stamp, detector.blob_config, frame.points)
@@ -580,19 +581,13 @@ def _exercise_detection() -> None:
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:
-    """``scan`` with the returns of the robot's body (``StampedPose.body``) as NaN."""
+    """``scan`` with the returns of the robot's body (``StampedPose.body``) as NaN (no
+    measurement; the same scan if none is)."""
     if body is None or body.size != scan.n_beams:
         return scan
-    with np.errstate(invalid='ignore'):
-        return _without(scan, scan.ranges <= body)
-
-
-def _without(scan: Scan, masked: np.ndarray) -> Scan:
-    """``scan`` with the ``masked`` beams as NaN (no measurement; the same scan if none)."""
-    if not masked.any():
+    ranges = np.empty(scan.n_beams)
+    if not without_body(scan.ranges, np.ascontiguousarray(body, dtype=float), ranges):
         return scan
-    ranges = scan.ranges.copy()
-    ranges[masked] = np.nan
     # a copy of the (validated) scan with its ranges replaced: dataclasses.replace would
     # validate it again, which costs more than the rest of this function
     out = object.__new__(Scan)
