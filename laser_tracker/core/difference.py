@@ -243,26 +243,28 @@ def _earlier(stack, lazy, free, beam, reach, meta, buffer, maps, k, i, j, cells,
     (``free_neighbourhood``) FREE only when the mapped cell's 4- or 8-neighbours are FREE
     too, and with ``motion_depth`` only when the beam that freed it went on far enough
     beyond (:func:`_displaced`); else a FREE cell reads UNKNOWN. Reads the arrays
-    directly: a helper that passes them on costs reference counting per cell."""
+    directly: a helper that passes them on costs reference counting per cell (and so
+    would a second exit: ``jit.alive``)."""
     m = cells + 2 * PAD
     p = mapped_cell(i, j, maps[k, 0], maps[k, 1], maps[k, 2], maps[k, 3], cells)
     v = stack[buffer, p]
     if v == UNKNOWN and lazy[buffer] and reach[p] < free[buffer, beam[p]]:
         v = FREE
-    if v != FREE:
-        return v
-    for n in range(1, around):
-        q = p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
-        if not (stack[buffer, q] == FREE or (stack[buffer, q] == UNKNOWN and lazy[buffer]
-                                             and reach[q] < free[buffer, beam[q]])):
-            return UNKNOWN
-    if motion_depth > 0.0:
+    if v == FREE:
+        for n in range(1, around):
+            q = p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
+            if not (stack[buffer, q] == FREE or (stack[buffer, q] == UNKNOWN and lazy[buffer]
+                                                 and reach[q] < free[buffer, beam[q]])):
+                v = UNKNOWN
+                break
+    if v == FREE and motion_depth > 0.0:
         qx, qy, need = _displaced(i, j, maps[k, 4], maps[k, 5], maps[k, 6], cells,
                                   resolution, motion_depth)
         b = covering_beam(qx, qy, meta[buffer, 4], meta[buffer, 5], meta[buffer, 6])
         if not (b >= 0 and np.float64(free[buffer, b]) - math.hypot(qx, qy) >= need):
-            return UNKNOWN
-    return FREE
+            v = UNKNOWN
+    jit.alive((stack, lazy, free, beam, reach, meta, maps))
+    return v
 
 
 @jit.kernel
@@ -431,7 +433,8 @@ def _background_add(points, pose, movers, radius, key, count, last, settings, st
                 break
         if near:
             continue
-        x, y = _to_world(pose, points[r, 0], points[r, 1])
+        px, py = points[r, 0], points[r, 1]
+        x, y = c * px - s * py + pose[0], s * px + c * py + pose[1]      # _to_world
         i = np.int64(math.floor(x * settings[_INV]))
         j = np.int64(math.floor(y * settings[_INV]))
         slot = ((i & mask) << bits) | (j & mask)
@@ -452,17 +455,10 @@ def _background_add(points, pose, movers, radius, key, count, last, settings, st
 
 @jit.inline
 def _within(dx, dy, limit):
-    """``math.sqrt(dx * dx + dy * dy) <= limit``: the squares decide unless within a relative
-    1e-9 of the limit's square (far above their rounding errors), where the square root
-    does."""
-    d2 = dx * dx + dy * dy
-    if 1e-100 < limit < 1e100:
-        l2 = limit * limit
-        if d2 < l2 * (1.0 - 1e-9):
-            return True
-        if d2 > l2 * (1.0 + 1e-9):
-            return False
-    return math.sqrt(d2) <= limit
+    """``math.sqrt(dx * dx + dy * dy) <= limit`` (the square root only where the squares
+    leave it open)."""
+    side = jit.compare_length(dx, dy, limit)
+    return side < 0 or (side == 0 and math.sqrt(dx * dx + dy * dy) <= limit)
 
 
 def changed_with_history(frame, stamp: float, pose, history: GridHistory,

@@ -193,6 +193,13 @@ SURFACE_RMS = 0.03
 SURFACE_LENGTH = 1.0
 
 
+@jit.inline
+def _within(dx, dy, limit):
+    """``math.hypot(dx, dy) < limit`` (hypot only where the squares leave it open)."""
+    side = jit.compare_length(dx, dy, limit)
+    return side < 0 or (side == 0 and math.hypot(dx, dy) < limit)
+
+
 @jit.kernel
 def _sign(x):
     """``np.sign``: 1, -1, 0 (a NaN stays NaN)."""
@@ -277,8 +284,8 @@ def _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free):
             v = (qx[k], qy[k], qx[k] * qx[k], qx[k] * qy[k], qy[k] * qy[k])
             for c in range(5):
                 cum[k + 1, c] = v[c] if k == 0 else cum[k, c] + v[c]
-            first[k] = k if k == 0 or math.hypot(qx[k] - qx[k - 1], qy[k] - qy[k - 1]) \
-                >= settings[_JUMP] else first[k - 1]
+            first[k] = k if k == 0 or not _within(qx[k] - qx[k - 1], qy[k] - qy[k - 1],
+                                                  settings[_JUMP]) else first[k - 1]
         for k in range(nv - 1, -1, -1):
             last[k] = k if k == nv - 1 or first[k + 1] == k + 1 else last[k + 1]
     cos_graze = settings[_COS_GRAZE]
@@ -428,7 +435,8 @@ def cell_value(stack, lazy, free, beam, reach, k, p):
     freed it (``lazy[k]``: the buffer holds only the marks)."""
     v = stack[k, p]
     if v == UNKNOWN and lazy[k] and reach[p] < free[k, beam[p]]:
-        return FREE
+        v = FREE
+    jit.alive((stack, lazy, free, beam, reach))       # one exit: no reference counting
     return v
 
 

@@ -74,8 +74,8 @@ def _normals(points, max_gap, gap_ratio):
     for i in range(m - 1):
         dx = points[i + 1, 0] - points[i, 0]
         dy = points[i + 1, 1] - points[i, 1]
-        if _linked(points, i, dx, dy, math.sqrt(min(rng2[i + 1], rng2[i])), max_gap,
-                   gap_ratio):
+        if _linked(points[i, 0], points[i, 1], points[i + 1, 0], points[i + 1, 1], dx, dy,
+                   math.sqrt(min(rng2[i + 1], rng2[i])), max_gap, gap_ratio):
             tx[i] += dx       # forward difference where linked
             ty[i] += dy
             tx[i + 1] += dx   # backward difference where linked
@@ -94,11 +94,13 @@ def _normals(points, max_gap, gap_ratio):
 
 
 @jit.inline
-def _linked(points, i, dx, dy, near, max_gap, gap_ratio):
-    """``hypot(dx, dy) < max_gap + gap_ratio * min(hypot(p[i + 1]), hypot(p[i]))``: the
-    link test of :func:`_normals`. Square roots of the squared lengths (``near``: of the
-    nearer point's range) decide unless they are within a relative 1e-9 of the limit (far
-    above their rounding errors and hypot's), where hypot does: it costs more."""
+def _linked(x0, y0, x1, y1, dx, dy, near, max_gap, gap_ratio):
+    """``hypot(dx, dy) < max_gap + gap_ratio * min(hypot(x1, y1), hypot(x0, y0))``: the link
+    test of :func:`_normals` between consecutive points ``(x0, y0)`` and ``(x1, y1)``.
+    Square roots of the squared lengths (``near``: of the nearer point's range) decide
+    unless they are within a relative 1e-9 of the limit (far above their rounding errors
+    and hypot's), where hypot does: it costs more. (Coordinates, not the points' array: an
+    array read in one branch only would cost reference counting per call.)"""
     limit = max_gap + gap_ratio * near
     if max_gap >= 0.0 and 0.0 <= gap_ratio <= 1e6 and 1e-100 < limit < 1e100 and \
             abs(dx) < 1e100 and abs(dy) < 1e100:        # no overflow, nothing lost below
@@ -107,8 +109,8 @@ def _linked(points, i, dx, dy, near, max_gap, gap_ratio):
             return True
         if length > limit * (1.0 + 1e-9):
             return False
-    return math.hypot(dx, dy) < max_gap + gap_ratio * min(
-        math.hypot(points[i + 1, 0], points[i + 1, 1]), math.hypot(points[i, 0], points[i, 1]))
+    return math.hypot(dx, dy) < max_gap + gap_ratio * min(math.hypot(x1, y1),
+                                                          math.hypot(x0, y0))
 
 
 @jit.kernel

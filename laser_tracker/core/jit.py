@@ -129,12 +129,27 @@ def kernel(function: Callable) -> Callable:
 def inline(function: Callable) -> Callable:
     """A small helper of kernels, compiled into each kernel that calls it (numba's
     ``inline='always'``): a call that passes arrays to a separately compiled function costs
-    a reference count update per array, which in a per-point loop is most of the time."""
+    a reference count update per array, which in a per-point loop is most of the time.
+
+    Inlined, an array argument still has its reference counted once per call unless numba
+    can pair the count with its release: when the helper uses the array last in one branch
+    and not in another (an early return, a read only some cells need), it cannot, and a
+    helper called per point then costs tens of nanoseconds per array (atomic counts): give
+    such a helper one exit and end it with :func:`alive` of its arrays."""
     numba = _configure()
     if numba is None:
         return kernel(function)
     return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy',
                       inline='always')(function)
+
+
+def _alive(arrays) -> None:
+    """Nothing: the last use of the arrays ``arrays`` (a tuple), at the one exit of an
+    :func:`inline` helper that reads some of them only in some branches, so that numba
+    pairs their reference counts within the call and drops them (see :func:`inline`)."""
+
+
+alive = inline(_alive)
 
 
 #: Set when a Ctrl-C arrived while numba's compiler was calling back into Python (see
@@ -198,6 +213,23 @@ def unique(values):
             out[n] = out[i]
             n += 1
     return out[:n]
+
+
+@inline
+def compare_length(dx, dy, limit):
+    """-1 when the length of ``(dx, dy)`` is below ``limit``, 1 when above, by its square
+    (far cheaper than ``math.hypot`` or a square root); 0 when the square lies within a
+    relative 1e-9 of the limit's (far above their rounding errors) or the numbers are too
+    large or small to square: then the caller decides by the length as it is to be computed
+    (``hypot``, ``sqrt``), whose result the squares give everywhere else."""
+    if 1e-100 < limit < 1e100 and abs(dx) < 1e100 and abs(dy) < 1e100:   # no overflow,
+        d2 = dx * dx + dy * dy                                  # nothing lost below
+        l2 = limit * limit
+        if d2 < l2 * (1.0 - 1e-9):
+            return -1
+        if d2 > l2 * (1.0 + 1e-9):
+            return 1
+    return 0
 
 
 # ------------------------------------------------------------------ numpy's summation orders

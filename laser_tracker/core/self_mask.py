@@ -442,17 +442,10 @@ def _mark_mixed(r, range_min, range_max, increment, width, jump, out):
 
 @jit.inline
 def _within(dx, dy, limit):
-    """``math.hypot(dx, dy) <= limit``: the squared length decides unless it is within a
-    relative 1e-9 of the limit's square (far above its rounding error and hypot's), where
-    hypot does; hypot costs more than the rest of a beam."""
-    if 1e-100 < limit < 1e100 and abs(dx) < 1e100 and abs(dy) < 1e100:   # no overflow,
-        d2 = dx * dx + dy * dy                                  # nothing lost below
-        l2 = limit * limit
-        if d2 < l2 * (1.0 - 1e-9):
-            return True
-        if d2 > l2 * (1.0 + 1e-9):
-            return False
-    return math.hypot(dx, dy) <= limit
+    """``math.hypot(dx, dy) <= limit`` (hypot only where the squares leave it open: it
+    costs more than the rest of a beam)."""
+    side = jit.compare_length(dx, dy, limit)
+    return side < 0 or (side == 0 and math.hypot(dx, dy) <= limit)
 
 
 @jit.kernel
