@@ -120,6 +120,7 @@ class EgoMotion:
         self.sources: dict[str, int] = {}
         self._restart_pending = False
         self.skipped: str | None = None     # why the last update returned None
+        _warm_up('ego-motion stage', _warm_up_ego_motion)
 
     # ---------------------------------------------------------------- stream
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list:
@@ -264,6 +265,7 @@ class Detector:
         self._load_person_detector(persons or PersonDetectorConfig())
         self._build()
         jit.compiled('detection kernels', _exercise_detection)
+        _warm_up('detection stage', _warm_up_detection)
 
     def _load_person_detector(self, config: PersonDetectorConfig) -> None:
         self.person_config = config
@@ -453,6 +455,7 @@ class Tracker:
         self.rules = StreamRules(self.hypotheses.config.max_gap)
         self.last: FrameResult | None = None
         self.skipped: str | None = None
+        _warm_up('tracking stage', _warm_up_tracking)
 
     @property
     def config(self) -> HypothesisConfig:
@@ -578,6 +581,76 @@ def _exercise_detection() -> None:
     people.legs = np.array([[0, -1]])
     people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background,
                        detector.difference_config.motion_depth)
+
+
+# ------------------------------------------------------------------------------- warm-up
+#
+# A stage's first scans run at full speed only once Python has specialised its code (after
+# several calls of each function) and the processor's caches hold it: each stage runs a few
+# synthetic scans at its construction, once per process (its kernels are compiled or loaded
+# by then: ``jit.compiled``).
+
+_warmed: set[str] = set()
+
+
+def _warm_up(what: str, call) -> None:
+    """Run ``call`` once per process (and not again while it runs: it makes the stage)."""
+    if what not in _warmed:
+        _warmed.add(what)
+        call()
+
+
+def _warm_up_scene(k: int) -> tuple[Scan, tuple[float, float, float], np.ndarray]:
+    """Scan ``k`` (0.1 s apart) of a 6 x 5 m room seen by a scanner driving 5 cm per scan,
+    its pose, and a person's two legs walking across the room (odometry frame)."""
+    x = 0.05 * k
+    legs = np.array([[1.5 + 0.1 * k, -1.0 + 0.12 * k], [1.5 + 0.1 * k, -0.75 + 0.12 * k]])
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
+    d = np.column_stack((np.cos(angles), np.sin(angles)))
+    with np.errstate(divide='ignore', invalid='ignore'):
+        wall_x = np.where(d[:, 0] > 0, (3.0 - x) / d[:, 0], np.inf)
+        wall_y = np.where(d[:, 1] != 0, 2.5 / np.abs(d[:, 1]), np.inf)
+    ranges = np.minimum(wall_x, wall_y)
+    for cx, cy in legs - (x, 0.0):
+        b = d @ (cx, cy)
+        disc = b * b - (cx * cx + cy * cy - 0.06 ** 2)
+        hit = (disc > 0) & (b > 0)
+        ranges = np.where(hit, np.minimum(ranges, b - np.sqrt(np.maximum(disc, 0.0))), ranges)
+    ranges[::37] = np.inf
+    scan = Scan(stamp=0.1 * k, ranges=ranges, angle_min=-math.pi / 2,
+                angle_increment=math.pi / 360, range_min=0.05, range_max=8.0)
+    return scan, (x, 0.0, 0.0), legs
+
+
+def _warm_up_ego_motion() -> None:
+    stage = EgoMotion()
+    for k in range(10):
+        scan, pose, _ = _warm_up_scene(k)
+        stage.add_odometry(scan.stamp, pose)
+        stage.update(scan)
+
+
+def _warm_up_detection() -> None:
+    detector = Detector()
+    for k in range(10):
+        scan, pose, _ = _warm_up_scene(k)
+        detector.update(scan, StampedPose(
+            stamp=scan.stamp, pose=np.array(pose), motion=np.zeros(3),
+            motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
+            quality=PoseQuality(), body=np.full(scan.n_beams, 0.1)))
+
+
+def _warm_up_tracking() -> None:
+    tracker = Tracker()
+    for k in range(10):
+        _, pose, legs = _warm_up_scene(k)
+        person = legs.mean(axis=0, keepdims=True)
+        blobs = Blobs(xy=legs, cells=np.array([3, 3]), extent=np.full(2, 0.1),
+                      structure=np.full(2, np.nan))
+        people = People(xy=person, confidence=np.ones(1), free=np.ones(1, bool),
+                        spread=np.full(1, 0.25), static=np.zeros(1, bool))
+        tracker.update(Detections(0.1 * k, np.array(pose), blobs, people,
+                                  Segments(xy=legs, leg=np.ones(2))))
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:
