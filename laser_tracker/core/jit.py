@@ -16,6 +16,10 @@ Where the cache is (decided once, when the first kernel is declared):
 * else no cache: every process compiles its kernels again (a few seconds at start); said
   once in the log (WARNING).
 
+A damaged cache file (an index or a kernel that cannot be read back: a disk error, a copy
+cut short) is a cache miss: that kernel is compiled again and its file rewritten; said
+once in the log (WARNING).
+
 :func:`compiled` runs a stage's first kernel call (at the stage's construction, with a tiny
 input) so that compiling happens at start, not in the middle of the first scans, and so
 that a machine where numba cannot compile (an unusual CPU that LLVM does not know) fails at
@@ -110,7 +114,51 @@ def _configure():
         if cache_dir is not None:
             numba.config.CACHE_DIR = cache_dir
         _state.update(cache=enabled, note=note)
+        _tolerate_damaged_cache()
     return numba
+
+
+def _tolerate_damaged_cache() -> None:
+    """numba's cache files, read so that a damaged one is a miss (the kernel is compiled and
+    the file rewritten) instead of an error that stops every start."""
+    try:
+        from numba.core.caching import IndexDataCacheFile
+    except ImportError:                 # another numba: its own behaviour
+        return
+    load_index = getattr(IndexDataCacheFile, '_load_index', None)
+    load_data = getattr(IndexDataCacheFile, '_load_data', None)
+    if load_index is None or load_data is None or \
+            getattr(IndexDataCacheFile, '_damage_tolerated', False):
+        return
+
+    def _load_index(self):
+        try:
+            return load_index(self)
+        except Exception as exc:  # noqa: BLE001 - whatever unpickling a damaged file raises
+            _damaged(self._index_path, exc)
+            return {}
+
+    def _load_data(self, name):
+        try:
+            return load_data(self, name)
+        except OSError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - as above
+            _damaged(self._data_path(name), exc)
+            raise OSError(str(exc)) from exc       # numba's load: a miss
+
+    IndexDataCacheFile._load_index = _load_index
+    IndexDataCacheFile._load_data = _load_data
+    IndexDataCacheFile._damage_tolerated = True
+
+
+def _damaged(path: str, exc: Exception) -> None:
+    """Say once that a damaged cache file is ignored."""
+    if not _state.get('damaged'):
+        _state['damaged'] = True
+        log.warning('a damaged file of the compiled kernels\' cache is ignored (%s: %s: %s); '
+                    'its kernels are compiled again', path, type(exc).__name__,
+                    ' '.join(str(exc).split())[:100])
 
 
 def kernel(function: Callable) -> Callable:
