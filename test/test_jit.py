@@ -164,6 +164,22 @@ def test_a_damaged_cache_file_is_compiled_again_and_rewritten(tmp_path, damaged)
     assert 'cache hits 1' in out.stdout and 'damaged' not in out.stderr, out.stderr
 
 
+def test_the_kernels_are_cached_under_every_kernel_modules_contents(tmp_path):
+    """A kernel compiled with kernels of another module: editing that module must not leave
+    its cached code in use, so the package's kernels carry the stamp of all its modules."""
+    (tmp_path / 'a.py').write_text('x = 1\n')
+    (tmp_path / 'sub').mkdir()
+    (tmp_path / 'sub' / 'b.py').write_text('y = 2\n')
+    first = jit.sources_stamp(tmp_path)
+    assert jit.sources_stamp(tmp_path) == first            # once per process and folder
+    jit._state['sources'].pop(tmp_path)
+    (tmp_path / 'sub' / 'b.py').write_text('y = 3\n')
+    assert jit.sources_stamp(tmp_path) != first
+    jit.unique(np.array([2, 1]))
+    stamp = jit.unique._cache._cache_file._source_stamp
+    assert stamp[1] == jit.sources_stamp()
+
+
 # ----------------------------------------------------------------------- compile errors
 
 

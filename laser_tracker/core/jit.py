@@ -20,6 +20,11 @@ A damaged cache file (an index or a kernel that cannot be read back: a disk erro
 cut short) is a cache miss: that kernel is compiled again and its file rewritten; said
 once in the log (WARNING).
 
+A kernel is compiled with the kernels it calls, which may live in other modules; numba
+would take a cached kernel as fresh while its own module is unchanged, so the kernels of
+this package are cached under the contents of all its kernel modules (:func:`sources_stamp`):
+a changed module compiles them all again, never runs an old one.
+
 :func:`compiled` runs a stage's first kernel call (at the stage's construction, with a tiny
 input) so that compiling happens at start, not in the middle of the first scans, and so
 that a machine where numba cannot compile (an unusual CPU that LLVM does not know) fails at
@@ -28,6 +33,7 @@ from the nodes and the command-line tools).
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import tempfile
@@ -115,7 +121,53 @@ def _configure():
             numba.config.CACHE_DIR = cache_dir
         _state.update(cache=enabled, note=note)
         _tolerate_damaged_cache()
+        _stamp_with_every_kernel_module()
     return numba
+
+
+def sources_stamp(folder: Path = PACKAGE_CACHE.parent) -> str:
+    """A hash of the contents of every Python module below ``folder`` (the kernels'
+    modules), once per process and folder."""
+    stamps = _state.setdefault('sources', {})
+    if folder not in stamps:
+        digest = hashlib.sha256()
+        for path in sorted(folder.rglob('*.py')):
+            digest.update(str(path.relative_to(folder)).encode())
+            digest.update(path.read_bytes())
+        stamps[folder] = digest.hexdigest()
+    return stamps[folder]
+
+
+def _stamp_with_every_kernel_module() -> None:
+    """numba's cache locators, for functions of this package, stamped with
+    :func:`sources_stamp` besides their own module's stamp."""
+    try:
+        from numba.core import caching
+    except ImportError:                 # another numba: its own behaviour
+        return
+    impl = getattr(caching, 'CacheImpl', None) or getattr(caching, '_CacheImpl', None)
+    if impl is None or getattr(impl, '_stamped_with_every_kernel_module', False):
+        return
+    folder = str(PACKAGE_CACHE.parent) + os.sep
+
+    def stamped(locator):
+        class Stamped(locator):
+            def get_source_stamp(self):
+                stamp = super().get_source_stamp()
+                if os.path.realpath(self._py_file).startswith(folder):
+                    return stamp, sources_stamp()
+                return stamp
+        Stamped.__name__ = Stamped.__qualname__ = f'Stamped{locator.__name__}'
+        return Stamped
+
+    ours = []
+    for name in ('UserProvidedCacheLocator', '_UserProvidedCacheLocator',
+                 'InTreeCacheLocator', '_InTreeCacheLocator'):
+        locator = getattr(caching, name, None)
+        if locator is not None and locator in impl._locator_classes:
+            ours.append(stamped(locator))
+    impl._locator_classes = ours + list(impl._locator_classes)
+    impl._stamped_with_every_kernel_module = True
 
 
 def _tolerate_damaged_cache() -> None:
