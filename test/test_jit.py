@@ -164,20 +164,31 @@ def test_a_damaged_cache_file_is_compiled_again_and_rewritten(tmp_path, damaged)
     assert 'cache hits 1' in out.stdout and 'damaged' not in out.stderr, out.stderr
 
 
-def test_the_kernels_are_cached_under_every_kernel_modules_contents(tmp_path):
-    """A kernel compiled with kernels of another module: editing that module must not leave
-    its cached code in use, so the package's kernels carry the stamp of all its modules."""
-    (tmp_path / 'a.py').write_text('x = 1\n')
-    (tmp_path / 'sub').mkdir()
-    (tmp_path / 'sub' / 'b.py').write_text('y = 2\n')
-    first = jit.sources_stamp(tmp_path)
-    assert jit.sources_stamp(tmp_path) == first            # once per process and folder
-    jit._state['sources'].pop(tmp_path)
-    (tmp_path / 'sub' / 'b.py').write_text('y = 3\n')
-    assert jit.sources_stamp(tmp_path) != first
-    jit.unique(np.array([2, 1]))
-    stamp = jit.unique._cache._cache_file._source_stamp
-    assert stamp[1] == jit.sources_stamp()
+def test_a_kernel_is_cached_under_the_modules_it_may_call_into(tmp_path):
+    """A kernel is compiled with the kernels it calls in other modules: editing one of them
+    must not leave its cached code in use, so a kernel's stamp covers its module and the
+    package's modules it imports, directly or not (and no others)."""
+    core = tmp_path / 'core'
+    (core / 'sub').mkdir(parents=True)
+    (core / 'a.py').write_text('from laser_tracker.core import b, jit\n')
+    (core / 'b.py').write_text('def f():\n    from laser_tracker.core.sub.c import (x,\n'
+                               '                                         y)\n')
+    (core / 'sub' / 'c.py').write_text('x = y = 1\n')
+    (core / 'jit.py').write_text('')
+    (core / 'other.py').write_text('z = 2\n')
+    assert {p.name for p in jit._imported_modules(core / 'a.py')} == \
+        {'a.py', 'b.py', 'c.py', 'jit.py'}
+    first = jit.sources_stamp(core / 'a.py')
+    assert jit.sources_stamp(core / 'a.py') == first      # once per process and module
+    (core / 'other.py').write_text('z = 3\n')
+    jit._state['sources'].clear()
+    assert jit.sources_stamp(core / 'a.py') == first      # not imported: no matter
+    (core / 'sub' / 'c.py').write_text('x = y = 2\n')
+    jit._state['sources'].clear()
+    assert jit.sources_stamp(core / 'a.py') != first
+    jit.unique(np.array([2, 1]))                          # the package's kernels carry it
+    assert jit.unique._cache._cache_file._source_stamp[1] == \
+        jit.sources_stamp(Path(jit.__file__))
 
 
 # ----------------------------------------------------------------------- compile errors

@@ -21,9 +21,10 @@ cut short) is a cache miss: that kernel is compiled again and its file rewritten
 once in the log (WARNING).
 
 A kernel is compiled with the kernels it calls, which may live in other modules; numba
-would take a cached kernel as fresh while its own module is unchanged, so the kernels of
-this package are cached under the contents of all its kernel modules (:func:`sources_stamp`):
-a changed module compiles them all again, never runs an old one.
+would take a cached kernel as fresh while its own module is unchanged, so a kernel of this
+package is cached under the contents of its module and of every module of the package that
+module imports, directly or not (:func:`sources_stamp`): a changed module compiles the
+kernels that may call into it again, never runs an old one.
 
 :func:`compiled` runs a stage's first kernel call (at the stage's construction, with a tiny
 input) so that compiling happens at start, not in the middle of the first scans, and so
@@ -36,6 +37,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import re
 import tempfile
 import threading
 from collections.abc import Callable
@@ -125,17 +127,43 @@ def _configure():
     return numba
 
 
-def sources_stamp(folder: Path = PACKAGE_CACHE.parent) -> str:
-    """A hash of the contents of every Python module below ``folder`` (the kernels'
-    modules), once per process and folder."""
+def sources_stamp(module: Path) -> str:
+    """A hash of the contents of ``module`` (a file of this package's ``core``) and of every
+    module of ``core`` it imports, directly or not; once per process and module."""
     stamps = _state.setdefault('sources', {})
-    if folder not in stamps:
+    module = Path(module).resolve()
+    if module not in stamps:
         digest = hashlib.sha256()
-        for path in sorted(folder.rglob('*.py')):
-            digest.update(str(path.relative_to(folder)).encode())
+        for path in sorted(_imported_modules(module)):
+            digest.update(path.name.encode())
             digest.update(path.read_bytes())
-        stamps[folder] = digest.hexdigest()
-    return stamps[folder]
+        stamps[module] = digest.hexdigest()
+    return stamps[module]
+
+
+_IMPORT = re.compile(r'^\s*from\s+laser_tracker\.core((?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)'
+                     r'|^\s*import\s+laser_tracker\.core((?:\.\w+)+)', re.MULTILINE)
+
+
+def _imported_modules(module: Path) -> set[Path]:
+    """``module`` and the modules of its folder's package it imports (``from
+    laser_tracker.core... import ...``, anywhere in it), transitively."""
+    root = module.parent
+    while (root.parent / '__init__.py').exists() and root.name != 'core':
+        root = root.parent
+    found, todo = set(), [module]
+    while todo:
+        path = todo.pop()
+        if path in found or not path.is_file():
+            continue
+        found.add(path)
+        for match in _IMPORT.finditer(path.read_text(errors='replace')):
+            dotted = (match.group(1) or match.group(3) or '').strip('.')
+            base = root.joinpath(*dotted.split('.')) if dotted else root
+            todo += [base.with_suffix('.py'), base / '__init__.py']
+            for name in re.findall(r'\w+', (match.group(2) or '').split('#')[0]):
+                todo += [base / f'{name}.py', base / name / '__init__.py']
+    return found
 
 
 def _stamp_with_every_kernel_module() -> None:
@@ -154,8 +182,9 @@ def _stamp_with_every_kernel_module() -> None:
         class Stamped(locator):
             def get_source_stamp(self):
                 stamp = super().get_source_stamp()
-                if os.path.realpath(self._py_file).startswith(folder):
-                    return stamp, sources_stamp()
+                path = os.path.realpath(self._py_file)
+                if path.startswith(folder):
+                    return stamp, sources_stamp(Path(path))
                 return stamp
         Stamped.__name__ = Stamped.__qualname__ = f'Stamped{locator.__name__}'
         return Stamped
