@@ -18,6 +18,7 @@ from laser_tracker.core.geometry import between, compose
 from laser_tracker.core import icp
 from laser_tracker.core.icp import LocalMap, align, scan_normals
 from laser_tracker.core.scan import Scan
+from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
 from laser_tracker.tools.bag import PoseTrack
 from laser_tracker.tools.data import real_data
 
@@ -895,3 +896,33 @@ def test_the_degenerate_fusion_computes_as_numpy_bit_for_bit():
         assert np.array_equal(motion, between(previous, want_pose))
         assert np.array_equal(got_lam, lam)
         assert np.array_equal(cov, egomotion._covariance(want_info, lam))
+
+
+def test_the_rehearsed_first_match_changes_nothing(monkeypatch):
+    """The process's first scan is matched once more on copies of the estimator's state (so
+    that the second scan runs at full speed): the estimates and every state are those of an
+    estimator that does not rehearse."""
+    from laser_tracker.core import egomotion
+
+    monkeypatch.setattr(egomotion, '_rehearsed', [])
+    rng = np.random.default_rng(3)
+    path = [np.array([0.1 * k, 0.02 * k, 2 * k * DEG]) for k in range(5)]
+    scans = [cast(ROOM, p, sigma=0.005, rng=rng, stamp=0.2 * k) for k, p in enumerate(path)]
+    runs = []
+    for rehearses in (True, False):
+        est = EgoMotionEstimator(self_mask=SelfMask(SelfMaskConfig()))
+        est.rehearses = rehearses
+        out = []
+        for k, scan in enumerate(scans):
+            est.add_odometry(0.2 * k, path[k])
+            out.append(est.update(scan))
+        runs.append((est, out))
+    assert egomotion._rehearsed == [True]
+    (a, out_a), (b, out_b) = runs
+    for ea, eb in zip(out_a, out_b):
+        for name in ('pose', 'motion', 'covariance', 'pose_covariance'):
+            assert np.array_equal(getattr(ea, name), getattr(eb, name))
+        assert (ea.source, ea.reason) == (eb.source, eb.reason)
+    assert np.array_equal(a.chain, b.chain) and np.array_equal(a.prior.noise, b.prior.noise)
+    assert np.array_equal(a.matcher.map.rows, b.matcher.map.rows)
+    assert np.array_equal(a.self_mask.state, b.self_mask.state, equal_nan=True)

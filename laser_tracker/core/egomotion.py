@@ -1351,6 +1351,7 @@ def _exercise_kernels() -> None:
     ranges[0] = np.nan
     for mask in (None, SelfMask(SelfMaskConfig())):
         est = EgoMotionEstimator(EgoMotionConfig(min_points=3), self_mask=mask)
+        est.rehearses = False
         for k in range(2):
             est.add_odometry(0.1 * k, (0.0, 0.0, 0.0))
             est.update(Scan(stamp=0.1 * k, ranges=ranges, angle_min=-1.5,
@@ -1379,6 +1380,9 @@ class EgoMotionEstimator:
         self.chain = np.zeros(_CHAIN)
         self.stats: Counter = Counter()
         self._notes: Counter = Counter()
+        #: whether this estimator's first scan may rehearse the process's first match
+        #: (:func:`_rehearse`; not the warm-ups' estimators, whose scans are synthetic)
+        self.rehearses = True
         self._reset_state()
         jit.compiled('ego-motion kernel', _exercise_kernels)
 
@@ -1429,11 +1433,14 @@ class EgoMotionEstimator:
         else:
             mask_settings, mask_state, masked = _NO_MASK
         out = np.empty(_OUT)
-        _scan_step(t, scan.ranges, cos, sin, max(scan.range_min, 1e-6), scan.range_max,
-                   abs(float(scan.angle_increment)), odo is not None, ox, oy, oth, seg,
-                   self.chain, self.settings, self.prior.noise, self.matcher.schedule.distances,
-                   self.matcher.schedule.settings, *local.buffers, mask_settings, mask_state,
-                   masked, out)
+        args = [t, scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+                abs(float(scan.angle_increment)), odo is not None, ox, oy, oth, seg,
+                self.chain, self.settings, self.prior.noise, self.matcher.schedule.distances,
+                self.matcher.schedule.settings, *local.buffers, mask_settings, mask_state,
+                masked, out]
+        _scan_step(*args)
+        if out[_O_SOURCE] == _INIT and self.rehearses and not _rehearsed:
+            _rehearse(args)
         if mask is not None:
             mask.masked_ranges = masked
             mask.applied = masked if out[_O_MASKED] else None
@@ -1574,6 +1581,21 @@ class EgoMotionEstimator:
 
 #: ``_scan_step``'s self-mask arguments without a self-mask.
 _NO_MASK = (np.zeros(0), np.zeros((0, 0)), np.zeros(0))
+#: Whether this process has rehearsed a match (:func:`_rehearse`).
+_rehearsed: list[bool] = []
+
+
+def _rehearse(args: list) -> None:
+    """The process's first scan, which started a pose chain (``args``: its
+    :func:`_scan_step` call), matched once more a little later against the map it seeded,
+    on copies of every state it would change (nothing of it is kept): the processor meets
+    the match's code with real data here, and the second scan runs at full speed (about
+    0.1 ms more for the first scan, once per process)."""
+    _rehearsed.append(True)
+    copies = [a.copy() if isinstance(a, np.ndarray) and a.flags.writeable else a
+              for a in args]
+    copies[0] = args[0] + 0.1
+    _scan_step(*copies)
 
 
 # ---------------------------------------------------------------------------- offline

@@ -624,6 +624,7 @@ def _warm_up_scene(k: int) -> tuple[Scan, tuple[float, float, float], np.ndarray
 
 def _warm_up_ego_motion() -> None:
     stage = EgoMotion()
+    stage.estimator.rehearses = False          # synthetic scans: not a real first match
     for k in range(10):
         scan, pose, _ = _warm_up_scene(k)
         stage.add_odometry(scan.stamp, pose)
