@@ -786,7 +786,7 @@ _WHY_NONE, _WHY_FEW_POINTS, _WHY_SMALL_MAP, _WHY_TOO_FAST, _WHY_DISAGREES = 0, 8
 
 @jit.kernel
 def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox, oy, oth,
-               oseg, chain, settings, noise, schedule, icp_settings, rows, grid_rows, order,
+               oseg, chain, settings, noise, schedule, icp_settings, rows, grid_xy, order,
                start, grid, map_state, mask_settings, mask_state, masked_ranges, out):
     """One scan (stamped ``t``, beams ``ranges``; its odometry: ``odo_has``, the platform's
     pose ``ox, oy, oth`` and segment ``oseg``) in place on the pose chain (``chain``), the
@@ -805,7 +805,7 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
         odo = _compose(odo, settings[_S_MOUNT:_S_MOUNT + 3])
     if not chain[_HAS_POSE]:
         _first_scan(t, ranges, skip, cos, sin, valid_min, valid_max, odo_has, odo, oseg,
-                    chain, settings, rows, grid_rows, order, start, grid, map_state, out)
+                    chain, settings, rows, grid_xy, order, start, grid, map_state, out)
         return
     pose = chain[_POSE:_POSE + 3].copy()
     dt = t - chain[_STAMP]
@@ -822,7 +822,7 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
     pts, packed = _match_and_fuse(
         ranges, skip, cos, sin, valid_min, valid_max, settings[_S_MIN_RANGE],
         settings[_S_MAX_RANGE], int(settings[_S_MAX_POINTS]), int(settings[_S_MIN_POINTS]),
-        predicted, schedule, icp_settings, rows[:n_map], grid_rows[:n_map], order[:n_map],
+        predicted, schedule, icp_settings, rows[:n_map], grid_xy[:n_map], order[:n_map],
         start, grid, pose, info, checks)
     n_pts = pts.shape[0]
     verdict, n_deg = int(packed[_VERDICT]), int(packed[_N_DEG])
@@ -888,11 +888,11 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
         lost = 0.0
         chain[_HAS_KEY] = 0.0
         map_state[icp._ROWS] = map_state[icp._SCANS] = 0
-        icp._grid_hash(rows, 0, icp.CELL, grid_rows, order, start, grid)
-        _add_key_scan(pts, new_pose, chain, settings, rows, grid_rows, order, start, grid,
+        icp._grid_hash(rows, 0, icp.CELL, grid_xy, order, start, grid)
+        _add_key_scan(pts, new_pose, chain, settings, rows, grid_xy, order, start, grid,
                       map_state)
     elif source != _CONSTANT_VELOCITY and _moved_since_key_scan(new_pose, chain, settings):
-        _add_key_scan(pts, new_pose, chain, settings, rows, grid_rows, order, start, grid,
+        _add_key_scan(pts, new_pose, chain, settings, rows, grid_xy, order, start, grid,
                       map_state)
     chain[_LOST] = lost
     if not (math.isfinite(new_pose[0]) and math.isfinite(new_pose[1])
@@ -923,7 +923,7 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
 
 @jit.inline
 def _first_scan(t, ranges, skip, cos, sin, valid_min, valid_max, odo_has, odo, oseg, chain,
-                settings, rows, grid_rows, order, start, grid, map_state, out):
+                settings, rows, grid_xy, order, start, grid, map_state, out):
     """The first scan (or the first after a reset): the pose chain starts at the odometry
     pose (else the origin) and the scan's points seed the local map."""
     pts = icp._scan_points(ranges, skip, cos, sin, valid_min, valid_max,
@@ -933,13 +933,13 @@ def _first_scan(t, ranges, skip, cos, sin, valid_min, valid_max, odo_has, odo, o
     chain[:] = 0.0
     map_state[icp._ROWS] = map_state[icp._SCANS] = 0
     if lost_map:
-        icp._grid_hash(rows, 0, icp.CELL, grid_rows, order, start, grid)
+        icp._grid_hash(rows, 0, icp.CELL, grid_xy, order, start, grid)
     pose = odo.copy() if odo_has else np.zeros(3)
     chain[_HAS_POSE] = 1.0
     chain[_POSE:_POSE + 3] = pose
     chain[_STAMP] = t
     _remember_odometry(odo_has, odo, oseg, chain)
-    _add_key_scan(pts, pose, chain, settings, rows, grid_rows, order, start, grid, map_state)
+    _add_key_scan(pts, pose, chain, settings, rows, grid_xy, order, start, grid, map_state)
     out[_O_SOURCE] = _INIT
     out[_O_POSE:_O_POSE + 3] = pose
     out[_O_N_POINTS] = pts.shape[0]
@@ -963,11 +963,11 @@ def _copy_pose_covariance(chain, out):
 
 
 @jit.inline
-def _add_key_scan(pts, pose, chain, settings, rows, grid_rows, order, start, grid, map_state):
+def _add_key_scan(pts, pose, chain, settings, rows, grid_xy, order, start, grid, map_state):
     """The scan at ``pose`` joins the local map (a scan of fewer than 2 points does not)."""
     if pts.shape[0] < 2:
         return
-    icp._add_scan(pts, pose, settings[_S_NORMAL_GAP], 0.05, icp.CELL, rows, grid_rows, order,
+    icp._add_scan(pts, pose, settings[_S_NORMAL_GAP], 0.05, icp.CELL, rows, grid_xy, order,
                   start, grid, map_state)
     chain[_HAS_KEY] = 1.0
     chain[_KEY:_KEY + 3] = pose
@@ -1208,7 +1208,7 @@ _N_DEG, _F_POSE, _F_MOTION, _F_INFO, _F_PRIOR, _F_COV, _PACKED = \
 @jit.kernel
 def _match_and_fuse(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
                     max_points, min_points, predicted, schedule, icp_settings, rows,
-                    grid_rows, order, start, grid, previous, prior, checks):
+                    grid_xy, order, start, grid, previous, prior, checks):
     """Steps 3-4 for one scan: its points, their ICP match from the ``predicted`` pose, the
     checks of the match (:func:`_verdict`) and, when it passes them, its fusion with the
     prediction (information ``prior``; :func:`_fuse`). Returns the points and the packed
@@ -1217,7 +1217,7 @@ def _match_and_fuse(ranges, skip, cos, sin, valid_min, valid_max, min_range, max
     out = np.full(_PACKED, np.nan)
     pts, matched = icp._points_and_align(
         ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range, max_points,
-        min_points, predicted, schedule.shape[0], schedule, icp_settings, rows, grid_rows,
+        min_points, predicted, schedule.shape[0], schedule, icp_settings, rows, grid_xy,
         order, start, grid, out)
     verdict, n_deg = _verdict(out, matched, pts.shape[0], checks)
     out[_VERDICT] = verdict

@@ -114,7 +114,7 @@ def _linked(x0, y0, x1, y1, dx, dy, near, max_gap, gap_ratio):
 
 
 @jit.kernel
-def _add_scan(points, pose, max_gap, gap_ratio, cell, rows, grid_rows, order, start, grid,
+def _add_scan(points, pose, max_gap, gap_ratio, cell, rows, grid_xy, order, start, grid,
               state):
     """In place on a local map's buffers (:meth:`LocalMap.buffers`; ``state``: rows, scans,
     most scans, each scan's rows oldest first): the world rows (x, y, nx, ny, n.q) of
@@ -156,7 +156,7 @@ def _add_scan(points, pose, max_gap, gap_ratio, cell, rows, grid_rows, order, st
     state[_SIZES + n_scans] = added
     state[_SCANS] = n_scans + 1
     state[_ROWS] = k
-    _grid_hash(rows, k, cell, grid_rows, order, start, grid)
+    _grid_hash(rows, k, cell, grid_xy, order, start, grid)
     return added
 
 
@@ -170,11 +170,11 @@ def _hash_size(n):
 
 
 @jit.kernel
-def _grid_hash(rows, n, cell, sorted_rows, order, start, grid):
-    """The grid hash of ``rows[:n]``, into the buffers: the rows sorted by hash bucket of
-    their grid cell (``sorted_rows[:n]``), their indices in ``rows`` (``order[:n]``), the
-    buckets' starts (``start[:size + 1]``), and the grid (origin, 1 / cell, cell, cells
-    along x and y, hash mask)."""
+def _grid_hash(rows, n, cell, grid_xy, order, start, grid):
+    """The grid hash of ``rows[:n]``, into the buffers: the points (x, y) sorted by hash
+    bucket of their grid cell (``grid_xy[:n]``: what the neighbour search reads, compact),
+    their indices in ``rows`` (``order[:n]``), the buckets' starts (``start[:size + 1]``),
+    and the grid (origin, 1 / cell, cell, cells along x and y, hash mask)."""
     grid[:] = 0.0
     if n == 0:
         start[0] = start[1] = 0
@@ -205,8 +205,7 @@ def _grid_hash(rows, n, cell, sorted_rows, order, start, grid):
         k = fill[bucket[i]]
         fill[bucket[i]] += 1
         order[k] = i
-        for c in range(5):
-            sorted_rows[k, c] = rows[i, c]
+        grid_xy[k, 0], grid_xy[k, 1] = rows[i, 0], rows[i, 1]
 
 
 @jit.kernel
@@ -216,8 +215,8 @@ def _bucket(ix, iy, mask):
 
 @jit.kernel
 def _nearest(qx, qy, d, rows, start, grid):
-    """``(j, tied)``: the row in ``rows`` (grid order) of the point nearest to (qx, qy)
-    strictly within ``d`` (-1: none), and whether another is exactly as near."""
+    """``(j, tied)``: the row in ``rows`` (points x, y in grid order) of the point nearest
+    to (qx, qy) strictly within ``d`` (-1: none), and whether another is exactly as near."""
     ox, oy, inv, cell = grid[_OX], grid[_OY], grid[_INV], grid[_SIZE]
     ncx, ncy, mask = int(grid[_NCX]), int(grid[_NCY]), int(grid[_MASK])
     fx = (qx - ox) * inv
@@ -519,11 +518,11 @@ def _untie(a, matched, tied, n_tied, c, s, x, y, d, rows, tree):
 
 
 @jit.kernel
-def _nearest_all(queries, d, rows, grid_rows, order, start, grid):
+def _nearest_all(queries, d, rows, grid_xy, order, start, grid):
     out = np.full(queries.shape[0], -1, np.int64)
     tree = _no_tree()
     for i in range(queries.shape[0]):
-        j, tied = _nearest(queries[i, 0], queries[i, 1], d, grid_rows, start, grid)
+        j, tied = _nearest(queries[i, 0], queries[i, 1], d, grid_xy, start, grid)
         if j >= 0:
             out[i] = order[j]
             if tied:
@@ -603,7 +602,7 @@ def _matmul(a, b, rows):
 
 
 @jit.kernel
-def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, start, grid):
+def _align(source, pose0, schedule, levels, settings, rows, grid_xy, order, start, grid):
     """The Gauss-Newton iterations of :func:`align` over the first ``levels`` association
     distances of ``schedule``; returns (pose, H, scalars, eigenvalues, eigenvectors, last
     step) with scalars = sum_w, iterations, converged, n_in, rms, scale.
@@ -637,7 +636,7 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, st
         for i in range(0, m, step):
             px, py = source[i, 0], source[i, 1]
             qx, qy = fma(py, -s, px * c) + x, fma(py, c, px * s) + y
-            j, tie = _nearest(qx, qy, d, grid_rows, start, grid)
+            j, tie = _nearest(qx, qy, d, grid_xy, start, grid)
             if j < 0:
                 continue
             if tie:                       # the KD-tree breaks the tie (below)
@@ -721,7 +720,7 @@ _SUM_W, _ITERATIONS, _CONVERGED, _N_IN, _RMS, _SCALE = range(SCALARS, SCALARS + 
 @jit.kernel
 def _points_and_align(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
                       max_points, min_points, pose0, levels, schedule, settings, rows,
-                      grid_rows, order, start, grid, out):
+                      grid_xy, order, start, grid, out):
     """The scan's points (:func:`_scan_points`) and, with ``levels`` > 0 and at least
     ``min_points`` of them and in the map, their :func:`_align` result packed into
     ``out[:RESULT_SIZE]``; returns the points and whether they were matched."""
@@ -730,7 +729,7 @@ def _points_and_align(ranges, skip, cos, sin, valid_min, valid_max, min_range, m
     if pts.shape[0] < min_points or rows.shape[0] < min_points:
         levels = 0
     pose, h, scalars, evals, evecs, last = _align(pts, pose0, schedule, levels, settings,
-                                                  rows, grid_rows, order, start, grid)
+                                                  rows, grid_xy, order, start, grid)
     out[POSE:POSE + 3] = pose
     out[HESSIAN:HESSIAN + 9] = h.ravel()
     out[SCALARS:SCALARS + 6] = scalars
@@ -774,16 +773,16 @@ class LocalMap:
         """Buffers for ``capacity`` rows, holding what the map has."""
         n = self.n_points
         old = self.arrays if n else None
-        rows, grid_rows = np.zeros((capacity, 5)), np.zeros((capacity, 5))
+        rows, grid_xy = np.zeros((capacity, 5)), np.zeros((capacity, 2))
         order = np.zeros(capacity, np.int64)
         start = np.zeros(_hash_size(capacity) + 1, np.int64)
         grid = np.zeros(7)
         if old is not None:
-            rows[:n], grid_rows[:n], order[:n] = old[0], old[1], old[2]
+            rows[:n], grid_xy[:n], order[:n] = old[0], old[1], old[2]
             start[:old[3].size], grid[:] = old[3], old[4]
-        #: what the kernels read and write: the rows (oldest scan first), the rows in grid
-        #: order and their indices in the rows, bucket starts, the grid, :attr:`state`
-        self.buffers = (rows, grid_rows, order, start, grid, self.state)
+        #: what the kernels read and write: the rows (oldest scan first), the points (x, y)
+        #: in grid order and their indices in the rows, bucket starts, the grid, :attr:`state`
+        self.buffers = (rows, grid_xy, order, start, grid, self.state)
 
     def reserve(self, extra: int) -> None:
         """Room for ``extra`` more rows."""
@@ -793,11 +792,11 @@ class LocalMap:
 
     @property
     def arrays(self) -> tuple:
-        """The map as :func:`align` reads it: the rows, the rows in grid order and their
-        indices in the rows, bucket starts, the grid (views of the buffers)."""
-        rows, grid_rows, order, start, grid, _ = self.buffers
+        """The map as :func:`align` reads it: the rows, the points (x, y) in grid order and
+        their indices in the rows, bucket starts, the grid (views of the buffers)."""
+        rows, grid_xy, order, start, grid, _ = self.buffers
         n = self.n_points
-        return rows[:n], grid_rows[:n], order[:n], start[:int(grid[_MASK]) + 2], grid
+        return rows[:n], grid_xy[:n], order[:n], start[:int(grid[_MASK]) + 2], grid
 
     @property
     def rows(self) -> np.ndarray:
