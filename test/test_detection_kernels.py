@@ -4,6 +4,7 @@ the numpy formulation added them, bad scans pass, and no scan compiles after the
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -199,6 +200,47 @@ def test_bad_scans_and_a_beam_count_that_changes_pass_detection(paper):
             assert b.count == 0 and d.segments.xy.shape == (0, 2)
         reported += r.skipped is None
     assert reported >= len(runs) - 3                   # at most the ego-motion's own skips
+
+
+@pytest.mark.parametrize('paper', [False, True])
+@pytest.mark.parametrize('beams, kind', [(1, 'room'), (3, 'room'), (4096, 'room'),
+                                         (361, 'invalid'), (3, 'invalid'),
+                                         (4096, 'garbage')])
+def test_a_stream_of_bad_scans_from_its_first_scan_runs_through_every_stage(beams, kind,
+                                                                             paper):
+    """A stream that starts with (and keeps) scans of 1, 3 or 4,096 beams, or with every
+    beam invalid, on a moving robot: every scan passes every stage (the ego-motion's pose
+    chain starts and goes on, coasting where nothing can be matched), nothing non-finite is
+    reported, and the normal scans after them get poses and detections."""
+    config = PipelineConfig()
+    if paper:
+        config = PipelineConfig.load(Path(__file__).resolve().parents[1] / 'config'
+                                     / 'paper_reference.yaml')
+    pipeline = Pipeline(config)
+    results = []
+    for k in range(8):
+        t = 0.1 * (k + 1)
+        pose = (0.03 * k, 0.0, 0.01 * k)
+        fov = 2 * math.pi * (1 - 1 / beams) if beams == 4096 else math.pi
+        scan = room_scan(t, pose, beams=beams if k < 5 else 361, fov=fov if k < 5 else math.pi,
+                         movers=[(1.0, -1.5 + 0.2 * k, 0.12)], seed=k)
+        if k < 5 and kind == 'garbage':
+            scan.ranges[:] = _garbage(beams, k)
+        elif k < 5 and kind == 'invalid':
+            scan.ranges[:] = np.resize([np.nan, np.inf, -np.inf, 0.0, 0.01, 8.0], beams)
+        pipeline.add_odometry(t, pose)
+        results.append(pipeline.step(scan, want_grids=k % 2 == 0))
+    for r in results:
+        assert r.skipped is None, r.skipped
+        assert np.isfinite(r.pose).all() and np.isfinite(r.ego.pose_covariance).all()
+        d = r.detections
+        assert np.isfinite(d.blobs.xy).all() and np.isfinite(d.people.xy).all()
+        assert np.isfinite(d.segments.xy).all()
+        assert np.isfinite(r.hypotheses.position).all()
+    if kind == 'invalid':
+        assert [r.source for r in results[:5]] == ['init'] + ['odometry'] * 4
+        assert all(r.detections.blobs.count == 0 for r in results[:5])
+    assert results[-1].source == 'icp'
 
 
 def test_no_scan_compiles_after_the_start():

@@ -18,6 +18,7 @@ from laser_tracker.core.geometry import between, compose
 from laser_tracker.core import icp
 from laser_tracker.core.icp import LocalMap, align, scan_normals
 from laser_tracker.core.scan import Scan
+from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
 from laser_tracker.tools.bag import PoseTrack
 from laser_tracker.tools.data import real_data
 
@@ -637,8 +638,9 @@ def test_fixed_prior_keeps_the_configured_model():
     est, out, truth = _room_run(poor_odometry, cfg, n=40)
     s = cast(ROOM, (0.0, 0.0, 0.0), stamp=100.0)
     s.ranges[:] = np.inf
-    est.add_odometry(100.0, compose(est._odo[0], (0.1, 0.0, 0.0)))
-    est.add_odometry(99.9, est._odo[0])
+    last = est.odometry.pose_at(0.2 * 39)[0]          # the odometry of the last scan
+    est.add_odometry(100.0, compose(last, (0.1, 0.0, 0.0)))
+    est.add_odometry(99.9, last)
     e = est.update(s)
     # too few points, no match tried: odometry with its fixed covariance (1 cm + 5 %/m)
     assert e.source == SOURCE_ODOMETRY and not pose_quality(e).failed
@@ -836,3 +838,91 @@ def test_the_fusion_kernel_computes_as_numpy_bit_for_bit():
         for a, b in zip(got, want):
             assert np.array_equal(a, b)
     assert 10 < gated < 290                    # both branches of the gate were taken
+
+
+def _degenerate_as_numpy(evals, evecs, scale, threshold, predicted, pose, info):
+    """The projection of the former numpy formulation: along degenerate directions (scaled
+    coordinates z = delta / sv) the prediction, and no ICP information."""
+    deg = evals < threshold
+    sv = np.array([1.0, 1.0, 1.0 / scale])
+    z = between(predicted, pose) / sv
+    u = evecs[:, ~deg]
+    pose = compose(predicted, sv * (u @ (u.T @ z)))
+    v = evecs[:, deg]
+    proj = np.eye(3) - v @ v.T
+    s_inv = np.diag(1.0 / sv)
+    return pose, s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
+
+
+def test_the_degenerate_fusion_computes_as_numpy_bit_for_bit():
+    """Along degenerate directions the kernel keeps the prediction and drops ICP's
+    information with numpy's products (its BLAS's order of fused multiply-adds)."""
+    from fractions import Fraction
+
+    from laser_tracker.core import egomotion
+
+    rng = np.random.default_rng(21)
+    checks = np.array([3.0, 0.3, 0.1, 0.01, 1e-4, 10.0, 5.0, 25.0, 2.0])
+    def fma(a, b, c):                  # rounded once
+        return float(Fraction(a) * Fraction(b) + Fraction(c))
+
+    probe, z = np.asfortranarray(rng.normal(size=(3, 2))), rng.normal(size=3)
+    if (probe.T @ z)[0] != fma(probe[2, 0], z[2], fma(probe[0, 0], z[0], probe[1, 0] * z[1])):
+        pytest.skip("numpy's BLAS on this machine multiplies small matrices in another order "
+                    "(the kernel gives the same numbers on every machine)")
+    for n_deg in (1, 2) * 500:
+        evecs, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        evals = np.sort(np.concatenate([rng.uniform(0.0, 0.009, n_deg),
+                                        rng.uniform(0.02, 1.0, 3 - n_deg)]))
+        scale = float(rng.uniform(0.5, 10.0))
+        predicted, previous = rng.normal(0.0, 1.0, (2, 3))
+        fused = predicted + rng.normal(0.0, 0.1, 3)
+        m = rng.normal(size=(3, 3))
+        info = m @ m.T * 10.0 ** rng.uniform(0.0, 6.0)
+        lam = 10.0 ** rng.uniform(1.0, 5.0, 3)
+        packed = np.full(egomotion._PACKED, np.nan)
+        packed[icp.EIGENVALUES:icp.EIGENVALUES + 3] = evals
+        packed[icp.EIGENVECTORS:icp.EIGENVECTORS + 9] = evecs.ravel()
+        packed[icp._SCALE] = scale
+        packed[egomotion._F_POSE:egomotion._F_POSE + 3] = fused
+        packed[egomotion._F_INFO:egomotion._F_INFO + 9] = info.ravel()
+        packed[egomotion._F_PRIOR:egomotion._F_PRIOR + 3] = lam
+        pose, motion, got_info, got_lam, cov = egomotion._fused(packed, n_deg, previous,
+                                                                predicted, checks)
+        want_pose, want_info = _degenerate_as_numpy(
+            evals, packed[icp.EIGENVECTORS:icp.EIGENVECTORS + 9].reshape(3, 3), scale,
+            checks[3], predicted, fused, info)
+        assert np.array_equal(pose, want_pose) and np.array_equal(got_info, want_info)
+        assert np.array_equal(motion, between(previous, want_pose))
+        assert np.array_equal(got_lam, lam)
+        assert np.array_equal(cov, egomotion._covariance(want_info, lam))
+
+
+def test_the_rehearsed_first_match_changes_nothing(monkeypatch):
+    """The process's first scan is matched once more on copies of the estimator's state (so
+    that the second scan runs at full speed): the estimates and every state are those of an
+    estimator that does not rehearse."""
+    from laser_tracker.core import egomotion
+
+    monkeypatch.setattr(egomotion, '_rehearsed', [])
+    rng = np.random.default_rng(3)
+    path = [np.array([0.1 * k, 0.02 * k, 2 * k * DEG]) for k in range(5)]
+    scans = [cast(ROOM, p, sigma=0.005, rng=rng, stamp=0.2 * k) for k, p in enumerate(path)]
+    runs = []
+    for rehearses in (True, False):
+        est = EgoMotionEstimator(self_mask=SelfMask(SelfMaskConfig()))
+        est.rehearses = rehearses
+        out = []
+        for k, scan in enumerate(scans):
+            est.add_odometry(0.2 * k, path[k])
+            out.append(est.update(scan))
+        runs.append((est, out))
+    assert egomotion._rehearsed == [True]
+    (a, out_a), (b, out_b) = runs
+    for ea, eb in zip(out_a, out_b):
+        for name in ('pose', 'motion', 'covariance', 'pose_covariance'):
+            assert np.array_equal(getattr(ea, name), getattr(eb, name))
+        assert (ea.source, ea.reason) == (eb.source, eb.reason)
+    assert np.array_equal(a.chain, b.chain) and np.array_equal(a.prior.noise, b.prior.noise)
+    assert np.array_equal(a.matcher.map.rows, b.matcher.map.rows)
+    assert np.array_equal(a.self_mask.state, b.self_mask.state, equal_nan=True)

@@ -128,6 +128,69 @@ def _read_only_install(tmp_path: Path) -> None:
     assert 'cache hits 0' in outputs[0].stdout and 'cache hits 1' in outputs[1].stdout
 
 
+DAMAGED_RUN = '''
+import logging, sys
+logging.basicConfig(level=logging.WARNING, format='%(levelname)s %(message)s')
+sys.path.insert(0, sys.argv[1])
+from laser_tracker.core import jit
+import kernels
+jit.compiled('test kernel', lambda: kernels.twice(1.0))
+assert kernels.twice(3.0) == 6.0
+print('cache hits', sum(kernels.twice.stats.cache_hits.values()))
+'''
+
+
+@pytest.mark.parametrize('damaged', ['nbi', 'nbc'])
+def test_a_damaged_cache_file_is_compiled_again_and_rewritten(tmp_path, damaged):
+    """A cache index or kernel that cannot be read back (a disk error, a copy cut short) is
+    a miss, said once: the kernel is compiled again and the next start loads it."""
+    (tmp_path / 'kernels.py').write_text(KERNEL_MODULE)
+    (tmp_path / 'run.py').write_text(DAMAGED_RUN)
+    env = {k: v for k, v in os.environ.items() if k not in ('NUMBA_CACHE_DIR',)}
+    env.update(PYTHONPATH=str(ROOT))
+
+    def start() -> subprocess.CompletedProcess:
+        return subprocess.run([PYTHON, str(tmp_path / 'run.py'), str(tmp_path)], env=env,
+                              capture_output=True, text=True, timeout=300)
+
+    assert 'cache hits 0' in start().stdout
+    for path in (tmp_path / '__pycache__').glob(f'kernels.twice-*.{damaged}'):
+        path.write_bytes(path.read_bytes()[:20])
+    out = start()
+    assert out.returncode == 0 and 'cache hits 0' in out.stdout, out.stderr
+    warnings = [ln for ln in out.stderr.splitlines() if 'damaged' in ln]
+    assert len(warnings) == 1 and damaged in warnings[0], out.stderr
+    out = start()
+    assert 'cache hits 1' in out.stdout and 'damaged' not in out.stderr, out.stderr
+
+
+def test_a_kernel_is_cached_under_the_modules_it_may_call_into(tmp_path):
+    """A kernel is compiled with the kernels it calls in other modules: editing one of them
+    must not leave its cached code in use, so a kernel's stamp covers its module and the
+    package's modules it imports, directly or not (and no others)."""
+    core = tmp_path / 'core'
+    (core / 'sub').mkdir(parents=True)
+    (core / 'a.py').write_text('from laser_tracker.core import b, jit\n')
+    (core / 'b.py').write_text('def f():\n    from laser_tracker.core.sub.c import (x,\n'
+                               '                                         y)\n')
+    (core / 'sub' / 'c.py').write_text('x = y = 1\n')
+    (core / 'jit.py').write_text('')
+    (core / 'other.py').write_text('z = 2\n')
+    assert {p.name for p in jit._imported_modules(core / 'a.py')} == \
+        {'a.py', 'b.py', 'c.py', 'jit.py'}
+    first = jit.sources_stamp(core / 'a.py')
+    assert jit.sources_stamp(core / 'a.py') == first      # once per process and module
+    (core / 'other.py').write_text('z = 3\n')
+    jit._state['sources'].clear()
+    assert jit.sources_stamp(core / 'a.py') == first      # not imported: no matter
+    (core / 'sub' / 'c.py').write_text('x = y = 2\n')
+    jit._state['sources'].clear()
+    assert jit.sources_stamp(core / 'a.py') != first
+    jit.unique(np.array([2, 1]))                          # the package's kernels carry it
+    assert jit.unique._cache._cache_file._source_stamp[1] == \
+        jit.sources_stamp(Path(jit.__file__))
+
+
 # ----------------------------------------------------------------------- compile errors
 
 

@@ -339,8 +339,8 @@ def test_pipeline_withholds_blobs_of_a_scan_placed_by_odometry_and_tracking_coas
         update = pipeline.ego.estimator.update
         k = {'n': 0}
 
-        def degraded(scan, skip=None):   # ICP "refused" on the chosen scans: odometry used
-            est = update(scan, skip)
+        def degraded(scan):   # ICP "refused" on the chosen scans: odometry used
+            est = update(scan)
             if k['n'] in bad_scans:
                 est = dataclasses.replace(est, source='odometry', reason='test: ICP refused')
             k['n'] += 1

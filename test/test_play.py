@@ -245,7 +245,10 @@ def test_play_into_the_node_graph_gives_the_offline_replays_tracks(ros_context, 
         # best effort (sensor QoS): a few samples may be dropped under load, and must not
         # change a track (checked above); seen once: 1,765 of 1,785.
         sent = topics(bag)['/odom'][1]
-        graph.spin_until(lambda: graph.ego.odom_received >= sent, timeout=10.0)
+        try:                # the samples still on their way: all, unless some were lost
+            graph.spin_until(lambda: graph.ego.odom_received >= sent, timeout=10.0)
+        except AssertionError:
+            pass
         assert sent >= graph.ego.odom_received >= 0.98 * sent
         last_receive = max(int(t) for t in _receive_times(bag))
         clock_ns = graph.ego.get_clock().now().nanoseconds

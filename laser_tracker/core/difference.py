@@ -59,6 +59,7 @@ what the gate reads; between the nodes it travels on ``ego_motion/status`` besid
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -184,7 +185,8 @@ class PoseQuality:
     @property
     def failed(self) -> bool:
         """True when the pose is not a trusted estimate (a non-finite value counts)."""
-        return not all(v < FAILED_VARIANCE for v in self.variance)
+        x, y, theta = self.variance
+        return not (x < FAILED_VARIANCE and y < FAILED_VARIANCE and theta < FAILED_VARIANCE)
 
 
 def pose_quality(estimate) -> PoseQuality:
@@ -208,10 +210,13 @@ def pose_quality(estimate) -> PoseQuality:
     if coasting and (tried or source != SOURCE_ODOMETRY):
         return PoseQuality((FAILED_VARIANCE,) * 3, unmatched)
     cov = estimate.covariance
-    try:
-        var = (float(cov[0][0]), float(cov[1][1]), float(cov[2][2]))
-    except (TypeError, IndexError, ValueError):
-        var = (FAILED_VARIANCE,) * 3
+    if type(cov) is np.ndarray and cov.shape == (3, 3):
+        var = (float(cov.item(0)), float(cov.item(4)), float(cov.item(8)))
+    else:
+        try:
+            var = (float(cov[0][0]), float(cov[1][1]), float(cov[2][2]))
+        except (TypeError, IndexError, ValueError):
+            var = (FAILED_VARIANCE,) * 3
     return PoseQuality(var, unmatched)
 
 
@@ -255,26 +260,28 @@ def _earlier(stack, lazy, free, beam, reach, meta, buffer, maps, k, i, j, cells,
     (``free_neighbourhood``) FREE only when the mapped cell's 4- or 8-neighbours are FREE
     too, and with ``motion_depth`` only when the beam that freed it went on far enough
     beyond (:func:`_displaced`); else a FREE cell reads UNKNOWN. Reads the arrays
-    directly: a helper that passes them on costs reference counting per cell."""
+    directly: a helper that passes them on costs reference counting per cell (and so
+    would a second exit: ``jit.alive``)."""
     m = cells + 2 * PAD
     p = mapped_cell(i, j, maps[k, 0], maps[k, 1], maps[k, 2], maps[k, 3], cells)
     v = stack[buffer, p]
     if v == UNKNOWN and lazy[buffer] and reach[p] < free[buffer, beam[p]]:
         v = FREE
-    if v != FREE:
-        return v
-    for n in range(1, around):
-        q = p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
-        if not (stack[buffer, q] == FREE or (stack[buffer, q] == UNKNOWN and lazy[buffer]
-                                             and reach[q] < free[buffer, beam[q]])):
-            return UNKNOWN
-    if motion_depth > 0.0:
+    if v == FREE:
+        for n in range(1, around):
+            q = p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
+            if not (stack[buffer, q] == FREE or (stack[buffer, q] == UNKNOWN and lazy[buffer]
+                                                 and reach[q] < free[buffer, beam[q]])):
+                v = UNKNOWN
+                break
+    if v == FREE and motion_depth > 0.0:
         qx, qy, need = _displaced(i, j, maps[k, 4], maps[k, 5], maps[k, 6], cells,
                                   resolution, motion_depth)
         b = covering_beam(qx, qy, meta[buffer, 4], meta[buffer, 5], meta[buffer, 6])
         if not (b >= 0 and np.float64(free[buffer, b]) - math.hypot(qx, qy) >= need):
-            return UNKNOWN
-    return FREE
+            v = UNKNOWN
+    jit.alive((stack, lazy, free, beam, reach, meta, maps))
+    return v
 
 
 @jit.kernel
@@ -502,23 +509,37 @@ def _background_add(points, pose, movers, radius, key, count, last, settings, st
     for r in range(n):
         near = False
         for b in range(local.shape[0]):
-            dx, dy = points[r, 0] - local[b, 0], points[r, 1] - local[b, 1]
-            near |= math.sqrt(dx * dx + dy * dy) <= radius
+            if _within(points[r, 0] - local[b, 0], points[r, 1] - local[b, 1], radius):
+                near = True
+                break
         if near:
             continue
-        x, y = _to_world(pose, points[r, 0], points[r, 1])
+        px, py = points[r, 0], points[r, 1]
+        x, y = c * px - s * py + pose[0], s * px + c * py + pose[1]      # _to_world
         i = np.int64(math.floor(x * settings[_INV]))
         j = np.int64(math.floor(y * settings[_INV]))
         slot = ((i & mask) << bits) | (j & mask)
         keys[k], slots[k] = (i << 32) + j, slot
-        # Several points of one cell write the same value: each cell counts once.
-        values[k] = (count[slot] * math.exp((last[slot] - stamp) / settings[_TAU])
-                     if key[slot] == keys[k] else 0.0) + step
+        # Several points of one cell write the same value: each cell counts once (the
+        # neighbour along the scan in the same cell has computed it).
+        if k and slots[k - 1] == slot and keys[k - 1] == keys[k]:
+            values[k] = values[k - 1]
+        else:
+            values[k] = (count[slot] * math.exp((last[slot] - stamp) / settings[_TAU])
+                         if key[slot] == keys[k] else 0.0) + step
         k += 1
     for r in range(k):
         key[slots[r]] = keys[r]
         count[slots[r]] = values[r]
         last[slots[r]] = stamp
+
+
+@jit.inline
+def _within(dx, dy, limit):
+    """``math.sqrt(dx * dx + dy * dy) <= limit`` (the square root only where the squares
+    leave it open)."""
+    side = jit.compare_length(dx, dy, limit)
+    return side < 0 or (side == 0 and math.sqrt(dx * dx + dy * dy) <= limit)
 
 
 def changed_with_history(frame, stamp: float, pose, history: GridHistory,
@@ -568,7 +589,9 @@ def people_in_odometry(people, pose, stamp: float, history: GridHistory,
                    np.asarray(walked_out, dtype=float))
 
 
+@functools.lru_cache(maxsize=8)
 def _settings(config: DifferenceConfig, resolution: float) -> np.ndarray:
+    """The kernels' settings of ``config`` (one array per configuration)."""
     return np.array([config.free_window, config.memory, config.free_neighbourhood,
                      config.motion_depth, resolution])
 

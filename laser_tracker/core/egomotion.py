@@ -1,8 +1,9 @@
 """Ego-motion: the scanner's motion between scans from odometry plus ICP scan matching.
 
-No ROS; the scan matching is a compiled kernel (:mod:`laser_tracker.core.icp`), and so are
-the fusion's algebra and the adaptive prior's update (one call each per scan). Usage, one
-estimator per scan stream::
+No ROS; each scan is one compiled kernel call (:func:`_scan_step`: the prediction, the scan
+match of :mod:`laser_tracker.core.icp`, the fusion, the checks, the adaptive prior and the
+pose chain; with a self-mask, its masking and learning too). Usage, one estimator per scan
+stream::
 
     est = EgoMotionEstimator(EgoMotionConfig())
     est.add_odometry(stamp, (x, y, theta))     # every odometry sample, as it arrives
@@ -14,9 +15,12 @@ estimator per scan stream::
 Offline, with the whole odometry as a PoseTrack: :func:`estimate_track`.
 
 Roles: :class:`OdometryBuffer` (the odometry stream), :class:`MotionPrior` (the prediction
-and its adaptive noise), :class:`ScanMatcher` (the scan's points, the local map and ICP),
-:func:`fuse` (ICP and the prediction by information) and :func:`implausible` (the checks of
-the fused motion); :class:`EgoMotionEstimator` holds the pose chain and runs them per scan.
+and its adaptive noise: :func:`_prediction`, :func:`_learn_prior`), :class:`ScanMatcher`
+(the scan's points, the local map and ICP: :func:`_match_and_fuse`), the fusion (ICP and the
+prediction by information: :func:`_fuse`, :func:`_fused`) and the checks of the fused motion
+(:func:`_implausible`); :class:`EgoMotionEstimator` holds the pose chain and runs them per
+scan, in one kernel call; Python makes the estimate and its texts of what the kernel
+found.
 
 Method (per scan):
 
@@ -82,8 +86,10 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core import icp, jit
-from laser_tracker.core.geometry import between, compose, plain_floats, wrap_scalar
+from laser_tracker.core.geometry import plain_floats, wrap_scalar
+from laser_tracker.core.person_detector import _python_hypot
 from laser_tracker.core.scan import Scan, beam_table
+from laser_tracker.core.self_mask import learn_scan, mask_scan
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +103,7 @@ SOURCES = (SOURCE_INIT, SOURCE_ICP, SOURCE_PARTIAL, SOURCE_ODOMETRY, SOURCE_CONS
            SOURCE_NONE)
 
 _PI = 3.141592653589793
+_TWO_PI = 2.0 * _PI
 
 
 @dataclass(frozen=True)
@@ -271,6 +278,9 @@ class EgoMotionEstimate:
     iterations: int = 0         # ICP: Gauss-Newton steps
     min_eigenvalue: float = float('nan')  # ICP: weakest normalised Hessian eigenvalue
     coasting: bool = False      # pose from the motion model (no match accepted)
+    #: (3, 3) of ``pose`` in the odometry frame: the motions' covariances accumulated since
+    #: the pose chain (re)started (None: no pose)
+    pose_covariance: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -301,8 +311,6 @@ class OdometryBuffer:
     @config.setter
     def config(self, config: EgoMotionConfig) -> None:
         self._config = config
-        mount = (config.mount_x, config.mount_y, config.mount_yaw)
-        self._mount = np.array(mount, dtype=float) if any(mount) else None
         # a jump: a step faster than 1.5 times the platform's limits, plus 0.1 m or rad
         self._jump_xy = 1.5 * config.max_translation_speed
         self._jump_theta = 1.5 * config.max_rotation_speed
@@ -330,7 +338,11 @@ class OdometryBuffer:
         if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(y)
                 and math.isfinite(th)):
             return 'bad odometry', 'non-finite odometry sample (ignored)'
-        p = (x, y, wrap_scalar(th))
+        return self.add_finite(t, x, y, th)
+
+    def add_finite(self, t: float, x: float, y: float, th: float) -> tuple[str, str] | None:
+        """:meth:`add` of a sample already known to be four finite floats."""
+        p = (x, y, (th + _PI) % _TWO_PI - _PI)      # geometry.wrap_scalar
         ts = self._t
         if not ts or t > ts[-1]:
             reason = None
@@ -370,24 +382,25 @@ class OdometryBuffer:
         return 'odometry out of order', 'odometry out of order (inserted in time order)'
 
     def trim(self, before: float) -> None:
-        """Forget samples older than ``before`` (keeping one for interpolation)."""
-        i = bisect.bisect_left(self._t, before) - 1
-        if i > 64:
-            del self._t[:i], self._p[:i], self._seg[:i]
+        """Forget samples older than ``before`` (keeping one for interpolation), once more
+        than 64 are."""
+        ts = self._t
+        if len(ts) > 65 and ts[65] < before:
+            i = bisect.bisect_left(ts, before) - 1
+            del ts[:i], self._p[:i], self._seg[:i]
 
-    def scanner_pose(self, t: float) -> tuple[np.ndarray | None, int, str]:
-        """:meth:`pose_at` for a scan stamped ``t``: read at ``t + odom_latency``, with the
-        scanner's mounting applied; samples older than ``odom_buffer`` are forgotten."""
+    def at_scan(self, t: float) -> tuple[tuple[float, float, float] | None, int, str]:
+        """:meth:`pose_at` for a scan stamped ``t``: read at ``t + odom_latency`` (the
+        platform's pose; the estimator applies the scanner's mounting); samples older than
+        ``odom_buffer`` are forgotten."""
         c = self.config
         odo, seg, reason = self.pose_at(t + c.odom_latency)
         if odo is not None:
             self.trim(t + c.odom_latency - c.odom_buffer)
-            if self._mount is not None:
-                odo = compose(odo, self._mount)
         return odo, seg, reason
 
-    def pose_at(self, t: float) -> tuple[np.ndarray | None, int, str]:
-        """``(pose, segment, '')`` at time ``t``, or ``(None, -1, reason)``."""
+    def pose_at(self, t: float) -> tuple[tuple[float, float, float] | None, int, str]:
+        """``((x, y, theta), segment, '')`` at time ``t``, or ``(None, -1, reason)``."""
         c = self.config
         ts = self._t
         if not ts:
@@ -401,15 +414,14 @@ class OdometryBuffer:
                     ts[-1] - ts[-2] <= c.odom_max_gap:
                 p0, dt0 = self._p[-2], ts[-1] - ts[-2]
                 f = late / dt0
-                guess = np.array([p1[0] + (p1[0] - p0[0]) * f, p1[1] + (p1[1] - p0[1]) * f,
-                                  wrap_scalar(p1[2] + wrap_scalar(p1[2] - p0[2]) * f)])
-                return guess, self._seg[-1], ''
-            return np.array(p1), self._seg[-1], ''
+                return (p1[0] + (p1[0] - p0[0]) * f, p1[1] + (p1[1] - p0[1]) * f,
+                        wrap_scalar(p1[2] + wrap_scalar(p1[2] - p0[2]) * f)), self._seg[-1], ''
+            return p1, self._seg[-1], ''
         if t < ts[0]:
             return None, -1, f'no odometry before the scan (first sample {ts[0] - t:.3f} s later)'
         i = bisect.bisect_left(ts, t)
         if ts[i] == t:
-            return np.array(self._p[i]), self._seg[i], ''
+            return self._p[i], self._seg[i], ''
         t0, t1 = ts[i - 1], ts[i]
         if self._seg[i - 1] != self._seg[i]:
             return None, -1, 'odometry jumped at the scan time'
@@ -417,11 +429,18 @@ class OdometryBuffer:
             return None, -1, f'odometry gap of {t1 - t0:.3f} s around the scan'
         p0, p1 = self._p[i - 1], self._p[i]
         f = (t - t0) / (t1 - t0)
-        return np.array([p0[0] + (p1[0] - p0[0]) * f, p0[1] + (p1[1] - p0[1]) * f,
-                         wrap_scalar(p0[2] + wrap_scalar(p1[2] - p0[2]) * f)]), self._seg[i], ''
+        return (p0[0] + (p1[0] - p0[0]) * f, p0[1] + (p1[1] - p0[1]) * f,
+                wrap_scalar(p0[2] + wrap_scalar(p1[2] - p0[2]) * f)), self._seg[i], ''
 
 
 # ------------------------------------------------------------------- adaptive prior
+
+#: Layout of one adapted noise model's state (a row of :attr:`MotionPrior.noise`): the Gram
+#: matrix of f, the right-hand sides (x, theta), the sum of f^2, the count, the fixed model
+#: c0 and the coefficients (x row, theta row).
+_GRAM, _RHS, _F2, _COUNT, _C0, _COEF, _NOISE = 0, 9, 15, 18, 19, 25, 31
+#: The rows of :attr:`MotionPrior.noise`: odometry, the constant-velocity motion model.
+_ODOMETRY_MODEL, _MOTION_MODEL = 0, 1
 
 
 class AdaptiveNoise:
@@ -436,69 +455,68 @@ class AdaptiveNoise:
     regularised towards the fixed model ``c0`` with the weight of ``weight`` samples, and
     kept non-negative; a sample beyond ``clip`` predicted sigmas is clipped there (a false
     match must not blow the estimate up; a real change passes in a few steps since each
-    clipped sample still raises the estimate). One kernel call per update
-    (:func:`_update_noise`); ``coef`` is kept as plain floats for the per-scan prediction.
+    clipped sample still raises the estimate). The state is one row of floats (``state``,
+    layout ``_GRAM`` ... ``_COEF``) that the estimator's kernel updates in place
+    (:func:`_update_noise`).
     """
 
-    def __init__(self, cx0, ct0, memory: int, weight: float, clip: float):
+    def __init__(self, cx0, ct0, memory: int, weight: float, clip: float,
+                 state: np.ndarray | None = None):
         self.c0 = (tuple(float(v) for v in cx0), tuple(float(v) for v in ct0))
-        self.coef = self.c0
         self.forget = 1.0 - 1.0 / max(float(memory), 1.0)
         self.weight = float(weight)
         self.clip2 = float(clip) ** 2
-        # the running sums: Gram matrix of f, right-hand sides (x, theta), sum of f^2, count
-        self._gram = np.zeros((3, 3))
-        self._rhs = np.zeros((2, 3))
-        self._f2 = np.zeros(3)
-        self._count = np.zeros(1)
-        self._c0 = np.array(self.c0)
-        self._coef = self._c0.copy()
-        self._settings = np.array([self.forget, self.weight, self.clip2])
-        jit.compiled('ego-motion kernels (fusion, adaptive prior)', _exercise_kernels)
+        self.state = np.zeros(_NOISE) if state is None else state
+        self.state[:] = 0.0
+        self.state[_C0:_COEF] = np.array(self.c0).ravel()
+        self.state[_COEF:_NOISE] = self.state[_C0:_COEF]
+        self.settings = np.array([self.forget, self.weight, self.clip2])
+        jit.compiled('ego-motion kernels (adaptive prior)', _exercise_noise)
+
+    @property
+    def coef(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The coefficients: ``(cx, ct)``."""
+        cx, ct = self.state[_COEF:_NOISE].reshape(2, 3).tolist()
+        return tuple(cx), tuple(ct)
 
     @property
     def count(self) -> float:
         """Effective number of matches learnt from (forgetting included)."""
-        return float(self._count[0])
+        return float(self.state[_COUNT])
 
     def variance(self, motion) -> tuple[float, float]:
         """``(var_xy, var_theta)`` of a prediction ``motion`` (x, y, theta)."""
         m = plain_floats(motion)
-        d2 = float(m[0] * m[0] + m[1] * m[1])
-        a2 = float(m[2] * m[2])
-        cx, ct = self.coef
-        return (max(cx[0] + cx[1] * d2 + cx[2] * a2, 1e-10),
-                max(ct[0] + ct[1] * d2 + ct[2] * a2, 1e-12))
-
-    def information(self, motion) -> np.ndarray:
-        """The diagonal (x, y, theta) of the information of a prediction ``motion``."""
-        vxy, vth = self.variance(motion)
-        return np.array([1.0 / vxy, 1.0 / vxy, 1.0 / vth])
+        return _noise_variance(self.state, float(m[0]), float(m[1]), float(m[2]))
 
     def update(self, motion, error, icp_variance) -> None:
         """One disagreement ``error`` (x, y, theta) of the prediction ``motion`` with an ICP
         motion of variance ``icp_variance`` (x, y, theta)."""
         m, e = plain_floats(motion), plain_floats(error)
         _update_noise(float(m[0]), float(m[1]), float(m[2]), float(e[0]), float(e[1]),
-                      float(e[2]),
-                      float(icp_variance[0]), float(icp_variance[1]), float(icp_variance[2]),
-                      self._settings, self._gram, self._rhs, self._f2, self._count, self._c0,
-                      self._coef)
-        cx, ct = self._coef.tolist()
-        self.coef = (tuple(cx), tuple(ct))
+                      float(e[2]), float(icp_variance[0]), float(icp_variance[1]),
+                      float(icp_variance[2]), self.settings, self.state)
 
 
 @jit.kernel
-def _update_noise(m0, m1, m2, e0, e1, e2, iv0, iv1, iv2, settings, gram, rhs, f2, count,
-                  c0, coef):
-    """:meth:`AdaptiveNoise.update` in place on its sums and ``coef``: the sample of the
-    prediction ``m`` (disagreement ``e``, ICP variance ``iv``) added with forgetting, and the
-    coefficients solved again."""
-    forget, weight, clip2 = settings[0], settings[1], settings[2]
+def _noise_variance(state, m0, m1, m2):
+    """``(var_xy, var_theta)`` of a prediction ``m`` by the coefficients of ``state``."""
     d2 = m0 * m0 + m1 * m1
     a2 = m2 * m2
-    vxy = _at_least(coef[0, 0] + coef[0, 1] * d2 + coef[0, 2] * a2, 1e-10)
-    vth = _at_least(coef[1, 0] + coef[1, 1] * d2 + coef[1, 2] * a2, 1e-12)
+    c = _COEF
+    return (_at_least(state[c] + state[c + 1] * d2 + state[c + 2] * a2, 1e-10),
+            _at_least(state[c + 3] + state[c + 4] * d2 + state[c + 5] * a2, 1e-12))
+
+
+@jit.kernel
+def _update_noise(m0, m1, m2, e0, e1, e2, iv0, iv1, iv2, settings, state):
+    """:meth:`AdaptiveNoise.update` in place on its ``state``: the sample of the prediction
+    ``m`` (disagreement ``e``, ICP variance ``iv``) added with forgetting, and the
+    coefficients solved again."""
+    forget, weight, clip2 = settings[0], settings[1], settings[2]
+    vxy, vth = _noise_variance(state, m0, m1, m2)
+    d2 = m0 * m0 + m1 * m1
+    a2 = m2 * m2
     ix = 0.5 * (iv0 + iv1)
     ex2 = _at_most(0.5 * (e0 * e0 + e1 * e1), clip2 * (vxy + ix)) - ix
     et2 = _at_most(e2 * e2, clip2 * (vth + iv2)) - iv2
@@ -506,22 +524,26 @@ def _update_noise(m0, m1, m2, e0, e1, e2, iv0, iv1, iv2, settings, gram, rhs, f2
     f = (1.0, d2, a2)
     for i in range(3):             # (f[0] = 1: its products are exactly the other factor)
         for j in range(i, 3):
-            gram[i, j] = g * gram[i, j] + f[i] * f[j]
-            gram[j, i] = gram[i, j]
-        rhs[0, i] = g * rhs[0, i] + f[i] * ex2
-        rhs[1, i] = g * rhs[1, i] + f[i] * et2
-        f2[i] = g * f2[i] + f[i] * f[i]
-    count[0] = g * count[0] + 1.0
+            gram = g * state[_GRAM + 3 * i + j] + f[i] * f[j]
+            state[_GRAM + 3 * i + j] = state[_GRAM + 3 * j + i] = gram
+        state[_RHS + i] = g * state[_RHS + i] + f[i] * ex2
+        state[_RHS + 3 + i] = g * state[_RHS + 3 + i] + f[i] * et2
+        state[_F2 + i] = g * state[_F2 + i] + f[i] * f[i]
+    count = g * state[_COUNT] + 1.0
+    state[_COUNT] = count
     # the ridge weights: the fixed model counts as ``weight`` samples of each f^2
-    n = _at_least(count[0], 1e-12)
+    n = _at_least(count, 1e-12)
     pen = np.empty(3)
     for i in range(3):
-        pen[i] = weight * f2[i] / n
+        pen[i] = weight * state[_F2 + i] / n
     top = _at_least(_at_least(pen[0], pen[1]), pen[2]) + 1e-300
     for i in range(3):
         pen[i] = pen[i] + 1e-9 * top
+    gram = state[_GRAM:_RHS].copy().reshape(3, 3)
     for k in range(2):
-        _nonnegative_ridge(gram, rhs[k], pen, c0[k], coef[k])
+        _nonnegative_ridge(gram, state[_RHS + 3 * k:_RHS + 3 * k + 3], pen,
+                           state[_C0 + 3 * k:_C0 + 3 * k + 3],
+                           state[_COEF + 3 * k:_COEF + 3 * k + 3])
 
 
 @jit.inline
@@ -601,115 +623,51 @@ def _cramer3(p, q, r, s, t, u, v, w, x, b0, b1, b2, out):
     return True
 
 
+def _exercise_noise() -> None:
+    """:func:`_update_noise` and :func:`_noise_variance` compiled (or loaded)."""
+    state = np.zeros(_NOISE)
+    state[_C0:_NOISE] = 1e-4
+    _update_noise(0.1, 0.0, 0.01, 0.01, 0.0, 0.001, 1e-5, 1e-5, 1e-7,
+                  np.array([0.98, 5.0, 9.0]), state)
+    _noise_variance(state, 0.1, 0.0, 0.01)
+
+
 # ------------------------------------------------------------------------ prediction
-
-
-def too_fast(motion, dt: float, config: EgoMotionConfig) -> str:
-    """Why ``motion`` over ``dt`` seconds is beyond the platform's limits ('' if it is not);
-    scan stamps jitter, so the step may take ``speed_check_jitter`` longer."""
-    if dt <= 0.0:
-        return ''
-    x, y, theta = plain_floats(motion)
-    span = dt + config.speed_check_jitter
-    v = math.hypot(x, y) / span
-    w = abs(theta) / span
-    if v > config.max_translation_speed:
-        return f'{v:.2f} m/s > {config.max_translation_speed:g} m/s'
-    if w > config.max_rotation_speed:
-        return (f'{math.degrees(w):.0f} deg/s > '
-                f'{math.degrees(config.max_rotation_speed):.0f} deg/s')
-    return ''
-
-
-def odometry_increment(previous, current, dt: float,
-                       config: EgoMotionConfig) -> tuple[np.ndarray | None, str]:
-    """``(increment, '')``: the odometry motion between two scans' ``(pose, segment)``
-    (``current`` also has the reason it may be missing), or ``(None, why not)``."""
-    odo, seg, missing = current
-    if odo is None:
-        return None, missing
-    if previous[0] is None:
-        return None, 'no odometry at the previous scan'
-    if seg != previous[1]:
-        return None, 'odometry jumped since the previous scan'
-    inc = between(previous[0], odo)
-    speed = too_fast(inc, dt, config)
-    if speed:
-        return None, f'odometry step implies {speed} (jump?)'
-    return inc, ''
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """The motion expected since the previous scan (previous scanner frame) and its prior."""
-
-    motion: np.ndarray             # the odometry increment, else the constant-velocity guess
-    information: np.ndarray        # the prior's information, diagonal (x, y, theta)
-    odometry: np.ndarray | None    # the odometry increment (None: not usable)
-    constant_velocity: np.ndarray  # the previous motion scaled to the time step
 
 
 class MotionPrior:
     """Step 1 and 2 of the method: the prediction and its noise, fixed (``odom_sigma_*``,
-    ``cv_sigma_*``) or adapted to the accepted matches (``adaptive_prior``)."""
+    ``cv_sigma_*``) or adapted to the accepted matches (``adaptive_prior``). Its state is
+    :attr:`noise` (one row per model, :class:`AdaptiveNoise`'s layout), read and updated by
+    the estimator's kernel (:func:`_prediction`, :func:`_learn_prior`)."""
 
     def __init__(self, config: EgoMotionConfig):
         c = self.config = config
+        self.noise = np.zeros((2, _NOISE))
         self.odometry_noise = AdaptiveNoise(
             (c.odom_sigma_xy ** 2, c.odom_sigma_xy_per_m ** 2, 0.0),
             (c.odom_sigma_theta ** 2, c.odom_sigma_theta_per_m ** 2,
              c.odom_sigma_theta_per_rad ** 2),
-            c.adaptive_memory, c.adaptive_weight, c.adaptive_clip)
+            c.adaptive_memory, c.adaptive_weight, c.adaptive_clip,
+            self.noise[_ODOMETRY_MODEL])
         self.motion_model_noise = AdaptiveNoise(
             (c.cv_sigma_xy ** 2, 0.0, 0.0), (c.cv_sigma_theta ** 2, 0.0, 0.0),
-            c.adaptive_memory, c.adaptive_weight, c.adaptive_clip)
-        self._odometry_model = ((c.odom_sigma_xy, c.odom_sigma_xy_per_m, 0.0),
-                                (c.odom_sigma_theta, c.odom_sigma_theta_per_m,
-                                 c.odom_sigma_theta_per_rad))
-        self._motion_model = (c.cv_sigma_xy, 0.0, 0.0), (c.cv_sigma_theta, 0.0, 0.0)
-        # no motion seen yet: the guess (standing) is weak
-        self._unknown = np.array([0.01 / c.cv_sigma_xy ** 2, 0.01 / c.cv_sigma_xy ** 2,
-                                  0.01 / c.cv_sigma_theta ** 2])
+            c.adaptive_memory, c.adaptive_weight, c.adaptive_clip,
+            self.noise[_MOTION_MODEL])
 
-    def predict(self, increment, last_motion, last_dt: float, dt: float) -> Prediction:
-        """The odometry ``increment`` when usable, else the ``last_motion`` (over ``last_dt``)
-        scaled to ``dt`` (constant velocity, at most 3 times)."""
-        if last_motion is None or last_dt <= 0.0:
-            cv = np.zeros(3)
-        else:
-            cv = last_motion * min(dt / last_dt, 3.0)
-        if increment is not None:
-            info = self._information(self.odometry_noise, increment, self._odometry_model)
-            return Prediction(increment, info, increment, cv)
-        if last_motion is None:
-            return Prediction(cv, self._unknown, None, cv)
-        info = self._information(self.motion_model_noise, cv, self._motion_model)
-        return Prediction(cv, info, None, cv)
-
-    def learn(self, prediction: Prediction, icp_motion, icp_information,
-              has_history: bool) -> None:
-        """Feed the disagreement of the prediction with an accepted, fully constrained ICP
-        motion (before fusion); the motion model is learnt only once a motion was seen."""
-        var = _inverse_diagonal(icp_information)
-        if var is None:
-            return
-        inc = prediction.odometry
-        if inc is not None:
-            self.odometry_noise.update(inc, between(inc, icp_motion), var)
-        elif has_history:
-            cv = prediction.constant_velocity
-            self.motion_model_noise.update(cv, between(cv, icp_motion), var)
-
-    def _information(self, noise: AdaptiveNoise, motion, fixed) -> np.ndarray:
-        """Information (diagonal, x y theta) of a prediction ``motion``: the adapted noise,
-        or the fixed model (sigma = per step + per metre * d + per radian * |a|)."""
-        if self.config.adaptive_prior:
-            return noise.information(motion)
-        (a, b, _), (ta, tb, tc) = fixed
-        d = math.hypot(motion[0], motion[1])
-        sxy = a + b * d
-        sth = ta + tb * d + tc * abs(motion[2])
-        return np.array([1.0 / sxy ** 2, 1.0 / sxy ** 2, 1.0 / sth ** 2])
+    def settings(self) -> list[float]:
+        """The prior's part of the estimator's settings (``_S_ADAPTIVE`` ... ``_S_NOISE``):
+        adaptive or not, the information of a guess without any motion seen (standing: weak),
+        the fixed models (sigma per step, per metre, per radian; x then theta, odometry then
+        motion model), and the adapted models' forgetting, weight and clip."""
+        c = self.config
+        return [float(c.adaptive_prior),
+                0.01 / c.cv_sigma_xy ** 2, 0.01 / c.cv_sigma_xy ** 2,
+                0.01 / c.cv_sigma_theta ** 2,
+                c.odom_sigma_xy, c.odom_sigma_xy_per_m, 0.0,
+                c.odom_sigma_theta, c.odom_sigma_theta_per_m, c.odom_sigma_theta_per_rad,
+                c.cv_sigma_xy, 0.0, 0.0, c.cv_sigma_theta, 0.0, 0.0,
+                *self.odometry_noise.settings.tolist()]
 
 
 # ----------------------------------------------------------------------------- match
@@ -717,7 +675,8 @@ class MotionPrior:
 
 class ScanMatcher:
     """Step 3: the scan's points matched against the local map of the last key scans
-    (one compiled kernel per scan, :mod:`laser_tracker.core.icp`)."""
+    (:mod:`laser_tracker.core.icp`): its schedule, the map, and the checks and fusion
+    settings the estimator's kernel reads."""
 
     def __init__(self, config: EgoMotionConfig):
         c = self.config = config
@@ -728,173 +687,488 @@ class ScanMatcher:
             distances, c.kernel_ratio, c.steps_per_association, c.final_associations,
             converged_translation=c.converged_translation,
             converged_rotation=c.converged_rotation, coarse_stride=c.coarse_stride)
-        self.map = icp.LocalMap(c.map_scans, c.normal_max_gap)
-        self.key_pose: np.ndarray | None = None
+        self.map = icp.LocalMap(c.map_scans, c.normal_max_gap,
+                                capacity=min(c.map_scans * c.max_points, 4096))
         #: the checks and the fusion's settings, as :func:`_match_and_fuse` reads them
-        self.checks = np.array([c.min_points, c.min_inlier_ratio, c.max_rms,
-                                c.degeneracy_threshold, c.icp_model_sigma ** 2,
-                                c.prior_max_ratio, c.prior_gate, c.prior_gate ** 2, 2.0])
+        self.checks = [c.min_points, c.min_inlier_ratio, c.max_rms, c.degeneracy_threshold,
+                       c.icp_model_sigma ** 2, c.prior_max_ratio, c.prior_gate,
+                       c.prior_gate ** 2, 2.0]
         icp.warm_up()
-        jit.compiled('ego-motion kernels (match and fusion)', _exercise_match_and_fuse)
 
     def clear(self) -> None:
         self.map.clear()
-        self.key_pose = None
 
-    def match(self, scan: Scan, pose0=None,
-              skip: np.ndarray | None = None) -> tuple[np.ndarray, icp.IcpResult | None]:
+    def match(self, scan: Scan, pose0=None) -> tuple[np.ndarray, icp.IcpResult | None]:
         """The scan's valid points (``Scan.valid()`` within ``min_range``/``max_range``, at
-        most ``max_points``, without the beams ``skip`` leaves out) and their ICP result
-        from ``pose0`` (None: not matched, or too few points or map points)."""
+        most ``max_points``) and their ICP result from ``pose0`` (None: not matched, or too
+        few points or map points)."""
         c = self.config
         _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
                                  scan.n_beams)
         return icp.match_scan(scan.ranges, cos, sin, max(scan.range_min, 1e-6),
                               scan.range_max, c.min_range, c.max_range, c.max_points,
-                              c.min_points, self.map, pose0, self.schedule, skip)
-
-    def match_and_fuse(self, scan: Scan, predicted: np.ndarray, previous: np.ndarray,
-                       prior: np.ndarray, skip: np.ndarray | None = None):
-        """Steps 3-4 in one kernel call (:func:`_match_and_fuse`): ``(points, ICP result or
-        None, verdict, packed)``; with verdict ``FUSED`` the fusion is in ``packed``."""
-        c = self.config
-        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
-                                 scan.n_beams)
-        pts, packed = _match_and_fuse(
-            scan.ranges, icp.NO_SKIP if skip is None else skip, cos, sin,
-            max(scan.range_min, 1e-6), scan.range_max, c.min_range, c.max_range,
-            c.max_points, c.min_points, predicted, self.schedule.distances,
-            self.schedule.settings, *self.map.arrays, previous, prior, self.checks)
-        verdict = int(packed[_VERDICT])
-        res = None if verdict == UNMATCHED else icp.result(packed, pts.shape[0])
-        return pts, res, verdict, packed
-
-    def unmatchable(self, n_points: int) -> str:
-        """Why a scan of ``n_points`` points is not matched ('' if it is)."""
-        c = self.config
-        if n_points < c.min_points:
-            return f'too few valid points ({n_points} < {c.min_points})'
-        if self.map.n_points < c.min_points:
-            return f'local map too small ({self.map.n_points} points)'
-        return ''
-
-    def refusal(self, res: icp.IcpResult, verdict: int) -> str:
-        """Why the match ``res`` is refused, by its ``verdict`` (:func:`_verdict`)."""
-        c = self.config
-        if verdict == FEW_INLIERS:
-            return f'only {res.n_inliers} points matched'
-        if verdict == LOW_OVERLAP:
-            return f'overlap {100 * res.inlier_ratio:.0f} % < {100 * c.min_inlier_ratio:.0f} %'
-        if verdict == HIGH_RESIDUAL:
-            return f'residual {res.rms:.3f} m > {c.max_rms:g} m'
-        if verdict == NOT_CONVERGED:
-            return 'did not converge'
-        if verdict == NOT_FINITE:
-            return 'non-finite result'
-        if verdict == DEGENERATE:
-            return 'degenerate in every direction'
-        return ''
-
-    def moved_since_key_scan(self, pose) -> bool:
-        key = self.key_pose
-        if key is None:
-            return True
-        d = between(key, pose)
-        return (math.hypot(d[0], d[1]) >= self.config.map_min_translation
-                or abs(d[2]) >= self.config.map_min_rotation)
-
-    def add_key_scan(self, pose, pts: np.ndarray) -> None:
-        """The scan at ``pose`` joins the local map (a scan of fewer than 2 points does not)."""
-        if pts.shape[0] < 2:
-            return
-        self.map.add_scan(pose, pts)
-        self.key_pose = pose.copy()
+                              c.min_points, self.map, pose0, self.schedule)
 
 
-# ---------------------------------------------------------------------------- fusion
+# ---------------------------------------------------------------------------- the kernel
+#
+# One kernel call per scan (:func:`_scan_step`) does the method's steps 1-5, the pose
+# chain's bookkeeping (key scans, re-seeding), the pose's covariance and, with a self-mask,
+# the masking before the match and the learning after it. It computes as the numpy and
+# Python formulation it replaced, operation for operation (results equal bit for bit):
+# Python's ``math.hypot`` is CPython's (``_python_hypot``), ``x ** 2`` libm's pow (a
+# run-time exponent, ``_S_TWO``, keeps the compiler from folding it into ``x * x``),
+# numpy's 3x3 products sequences of fused multiply-adds as its BLAS computes them, its 3x3
+# solve and inverse LAPACK's dgesv (numba's ``np.linalg.solve``). What it found is packed in
+# one float array (``_O_*``), from which Python makes the estimate and its texts.
 
 
-@dataclass(frozen=True)
-class Fused:
-    """Step 4: the ICP pose fused with the prediction."""
+def _layout(*fields: tuple[str, int]) -> dict[str, int]:
+    """Offsets of consecutive fields ``(name, width)`` of a packed float array, and its
+    size (``'size'``)."""
+    out, k = {}, 0
+    for name, width in fields:
+        out[name] = k
+        k += width
+    out['size'] = k
+    return out
 
-    pose: np.ndarray                # scanner pose in the odometry frame
-    motion: np.ndarray              # since the previous scan (previous scanner frame)
-    information: np.ndarray         # ICP's information (none along degenerate directions)
-    prior: np.ndarray               # the prediction's information used (bounded, gated)
-    degenerate: int                 # directions that took the prediction
-    covariance: np.ndarray          # of the fused motion: (information + prior)^-1
+
+#: The pose chain (:attr:`EgoMotionEstimator.chain`): a pose?, the pose, its stamp, a motion
+#: seen?, the previous motion and its time step, odometry at the previous scan? and its
+#: scanner pose and segment, scans without a match, a key scan? and its pose, the pose's
+#: covariance.
+_C = _layout(('has_pose', 1), ('pose', 3), ('stamp', 1), ('has_motion', 1), ('motion', 3),
+             ('dt', 1), ('has_odometry', 1), ('odometry', 3), ('segment', 1), ('lost', 1),
+             ('has_key', 1), ('key', 3), ('pose_covariance', 9))
+_HAS_POSE, _POSE, _STAMP, _HAS_MOTION, _MOTION, _DT, _HAS_ODO, _ODO, _SEGMENT, _LOST, \
+    _HAS_KEY, _KEY, _POSE_COV, _CHAIN = _C.values()
+
+#: The estimator's settings (:func:`_settings`): the scan's points, the platform's limits,
+#: the map's key scans, the mount, the prior's (:meth:`MotionPrior.settings`) and the
+#: match's checks (:attr:`ScanMatcher.checks`), and 2.0 (the pow exponent).
+_S = _layout(('min_points', 1), ('max_points', 1), ('min_range', 1), ('max_range', 1),
+             ('speed', 1), ('turn', 1), ('jitter', 1), ('correction_t', 1),
+             ('correction_r', 1), ('max_lost', 1), ('key_t', 1), ('key_r', 1),
+             ('normal_gap', 1), ('mounted', 1), ('mount', 3), ('two', 1), ('adaptive', 1),
+             ('unknown', 3), ('fixed', 12), ('noise', 3), ('checks', 9))
+_S_MIN_POINTS, _S_MAX_POINTS, _S_MIN_RANGE, _S_MAX_RANGE, _S_SPEED, _S_TURN, _S_JITTER, \
+    _S_CORRECTION_T, _S_CORRECTION_R, _S_MAX_LOST, _S_KEY_T, _S_KEY_R, _S_NORMAL_GAP, \
+    _S_MOUNTED, _S_MOUNT, _S_TWO, _S_ADAPTIVE, _S_UNKNOWN, _S_FIXED, _S_NOISE, _S_CHECKS, \
+    _SETTINGS = _S.values()
+
+#: What one scan gave (:func:`_scan_step`'s ``out``): the source (an index of ``SOURCES``),
+#: pose, motion, its covariance, the pose's covariance, the time step, the odometry
+#: increment (1 and the motion, or 0), scan points, matched?, inlier ratio, rms, iterations,
+#: weakest eigenvalue, degenerate directions, why no increment (``_INC_*``) and its kind and
+#: value, why the match was not used (``_WHY_*``) and two values, map points, the map
+#: re-seeded?, scans without a match, any beam masked?
+_O = _layout(('source', 1), ('pose', 3), ('motion', 3), ('covariance', 9),
+             ('pose_covariance', 9), ('dt', 1), ('odometry', 4), ('n_points', 1),
+             ('matched', 1), ('inlier_ratio', 1), ('rms', 1), ('iterations', 1),
+             ('min_eigenvalue', 1), ('n_deg', 1), ('inc', 3), ('why', 3), ('map_points', 1),
+             ('reseed', 1), ('lost', 1), ('masked', 1))
+_O_SOURCE, _O_POSE, _O_MOTION, _O_COV, _O_POSE_COV, _O_DT, _O_ODOMETRY, _O_N_POINTS, \
+    _O_MATCHED, _O_INLIER_RATIO, _O_RMS, _O_ITERATIONS, _O_MIN_EIG, _O_N_DEG, _O_INC, \
+    _O_WHY, _O_MAP_POINTS, _O_RESEED, _O_LOST, _O_MASKED, _OUT = _O.values()
+
+#: Sources by index (``out[_O_SOURCE]``).
+_INIT, _ICP, _PARTIAL, _ODOMETRY, _CONSTANT_VELOCITY = range(5)
+#: Why there is no odometry increment: none missing, no odometry at the scan (the buffer
+#: says why), none at the previous scan, a jump between them, a step faster than the
+#: platform (kind 1: translation, 2: rotation; and the speed).
+_INC_OK, _INC_MISSING, _INC_NO_PREVIOUS, _INC_JUMPED, _INC_TOO_FAST = range(5)
+#: Why a match is not used: it is, too few scan points, too small a map (its points), the
+#: match's verdicts (``FEW_INLIERS`` ... ``DEGENERATE``, 2-7; and its inliers), faster than
+#: the platform (kind, speed), disagreeing with odometry (distance, angle).
+_WHY_NONE, _WHY_FEW_POINTS, _WHY_SMALL_MAP, _WHY_TOO_FAST, _WHY_DISAGREES = 0, 8, 9, 10, 11
 
 
-def fuse(res: icp.IcpResult, packed: np.ndarray, previous, predicted,
-         config: EgoMotionConfig) -> Fused:
-    """The ICP pose fused with the ``predicted`` pose by information (the algebra was done
-    by :func:`_match_and_fuse`, into ``packed``; the motion is from the ``previous`` pose).
-    Along degenerate directions the prediction is kept."""
-    c = config
-    n_deg = int(packed[_N_DEG])
-    pose = packed[_F_POSE:_F_POSE + 3]
-    info = packed[_F_INFO:_F_INFO + 9].reshape(3, 3)
-    lam = packed[_F_PRIOR:_F_PRIOR + 3]
+@jit.kernel
+def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox, oy, oth,
+               oseg, chain, settings, noise, schedule, icp_settings, rows, grid_xy, order,
+               start, grid, map_state, mask_settings, mask_state, masked_ranges, out):
+    """One scan (stamped ``t``, beams ``ranges``; its odometry: ``odo_has``, the platform's
+    pose ``ox, oy, oth`` and segment ``oseg``) in place on the pose chain (``chain``), the
+    adapted noise (``noise``), the local map's buffers and, with a self-mask
+    (``mask_settings`` not empty), its state; what it gave into ``out`` (``_O_*``) and the
+    masked ranges into ``masked_ranges``."""
+    out[:] = 0.0
+    out[_O_RMS] = out[_O_MIN_EIG] = np.nan
+    masking = mask_settings.size > 0
+    skip = np.zeros(ranges.size if masking else 0, np.bool_)
+    if masking:
+        out[_O_MASKED] = mask_scan(ranges, valid_min, valid_max, increment, mask_settings,
+                                   mask_state, masked_ranges, skip)
+    odo = np.array([ox, oy, oth])
+    if odo_has and settings[_S_MOUNTED]:
+        odo = _compose(odo, settings[_S_MOUNT:_S_MOUNT + 3])
+    if not chain[_HAS_POSE]:
+        _first_scan(t, ranges, skip, cos, sin, valid_min, valid_max, odo_has, odo, oseg,
+                    chain, settings, rows, grid_xy, order, start, grid, map_state, out)
+        return
+    pose = chain[_POSE:_POSE + 3].copy()
+    dt = t - chain[_STAMP]
+    out[_O_DT] = dt
+    # 1-2. the prediction: the odometry increment, else constant velocity; and its prior
+    inc = _odometry_increment(odo_has, odo, oseg, dt, chain, settings, out)
+    has_inc = out[_O_INC] == _INC_OK
+    motion_p, info, cv = _prediction(has_inc, inc, dt, chain, settings, noise)
+    predicted = _compose(pose, motion_p)
+    # 3-4. the match from the predicted pose, fused with the prediction when it passes the
+    # match's checks
+    n_map = map_state[icp._ROWS]
+    checks = settings[_S_CHECKS:_SETTINGS]
+    pts, packed = _match_and_fuse(
+        ranges, skip, cos, sin, valid_min, valid_max, settings[_S_MIN_RANGE],
+        settings[_S_MAX_RANGE], int(settings[_S_MAX_POINTS]), int(settings[_S_MIN_POINTS]),
+        predicted, schedule, icp_settings, rows[:n_map], grid_xy[:n_map], order[:n_map],
+        start, grid, pose, info, checks)
+    n_pts = pts.shape[0]
+    verdict, n_deg = int(packed[_VERDICT]), int(packed[_N_DEG])
+    matched = verdict != UNMATCHED
+    out[_O_N_POINTS], out[_O_MATCHED], out[_O_MAP_POINTS] = n_pts, matched, n_map
+    if matched:
+        n_in = packed[icp._N_IN]
+        out[_O_INLIER_RATIO] = n_in / n_pts if n_pts else 0.0
+        out[_O_RMS] = packed[icp._RMS]
+        out[_O_ITERATIONS] = packed[icp._ITERATIONS]
+        out[_O_MIN_EIG] = packed[icp.EIGENVALUES]
+    # 5. the fused motion's checks
+    motion, fused_pose, cov = np.full(3, np.nan), np.full(3, np.nan), np.full((3, 3), np.nan)
+    info_icp = np.full((3, 3), np.nan)
+    if verdict == UNMATCHED:
+        out[_O_WHY] = _WHY_FEW_POINTS if n_pts < settings[_S_MIN_POINTS] else \
+            (_WHY_SMALL_MAP if n_map < settings[_S_MIN_POINTS] else _WHY_NONE)
+        out[_O_WHY + 1] = n_map
+    elif verdict != FUSED:
+        out[_O_WHY], out[_O_WHY + 1] = verdict, packed[icp._N_IN]
+    else:
+        fused_pose, motion, info_icp, _, cov = _fused(packed, n_deg, pose, predicted, checks)
+        _implausible(motion, predicted, fused_pose, has_inc, dt, settings, out)
+    accepted = verdict == FUSED and out[_O_WHY] == _WHY_NONE
+    lost = chain[_LOST]
+    reseed = False
+    if accepted:
+        if n_deg == 0 and settings[_S_ADAPTIVE]:
+            _learn_prior(packed, info_icp, pose, has_inc, inc, cv, chain[_HAS_MOTION] != 0,
+                         noise, settings)
+        source = _PARTIAL if n_deg else _ICP
+        out[_O_N_DEG] = n_deg
+        lost = 0.0
+    else:        # the platform coasts on its prediction; the pose chain goes on
+        source = _ODOMETRY if has_inc else _CONSTANT_VELOCITY
+        map_ok = n_map >= settings[_S_MIN_POINTS]
+        if matched or not map_ok:      # a match was tried and refused, or nothing to match
+            lost += 1.0
+        reseed = n_pts >= settings[_S_MIN_POINTS] and (not map_ok
+                                                       or lost >= settings[_S_MAX_LOST])
+        motion = motion_p
+        cov = np.zeros((3, 3))
+        for k in range(3):
+            cov[k, k] = 1.0 / info[k]
+    new_pose = _compose(pose, motion)
+    out[_O_SOURCE], out[_O_RESEED], out[_O_LOST] = source, reseed, lost
+    out[_O_POSE:_O_POSE + 3] = new_pose
+    out[_O_MOTION:_O_MOTION + 3] = motion
+    out[_O_COV:_O_COV + 9] = cov.ravel()
+    if has_inc:
+        out[_O_ODOMETRY] = 1.0
+        out[_O_ODOMETRY + 1:_O_ODOMETRY + 4] = inc
+    # the pose chain moves on; the scan joins the local map when it was placed by ICP or
+    # odometry (a guess would pollute the map) and has moved since the last key scan, or
+    # re-seeds it
+    chain[_POSE:_POSE + 3] = new_pose
+    chain[_STAMP] = t
+    _remember_odometry(odo_has, odo, oseg, chain)
+    chain[_HAS_MOTION] = 1.0
+    chain[_MOTION:_MOTION + 3] = motion
+    chain[_DT] = dt
+    if reseed:
+        lost = 0.0
+        chain[_HAS_KEY] = 0.0
+        map_state[icp._ROWS] = map_state[icp._SCANS] = 0
+        icp._grid_hash(rows, 0, icp.CELL, grid_xy, order, start, grid)
+        _add_key_scan(pts, new_pose, chain, settings, rows, grid_xy, order, start, grid,
+                      map_state)
+    elif source != _CONSTANT_VELOCITY and _moved_since_key_scan(new_pose, chain, settings):
+        _add_key_scan(pts, new_pose, chain, settings, rows, grid_xy, order, start, grid,
+                      map_state)
+    chain[_LOST] = lost
+    if not (math.isfinite(new_pose[0]) and math.isfinite(new_pose[1])
+            and math.isfinite(new_pose[2])):
+        _copy_pose_covariance(chain, out)
+        return
+    # the pose's covariance: the motion's, turned into the odometry frame
+    if np.isfinite(cov).all():
+        turn = new_pose[2] - motion[2]
+        c, s = math.cos(turn), math.sin(turn)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        added = _matmul3(_matmul3(rot, cov), rot.T.copy())
+        for i in range(3):
+            for j in range(3):
+                k = _POSE_COV + 3 * i + j
+                chain[k] = chain[k] + added[i, j]
+    _copy_pose_covariance(chain, out)
+    # the self-mask learns from measured motion: the odometry increment when there is one
+    # (the match itself may be pulled towards standing still by the body it has not learnt
+    # yet), else an accepted match; a guessed motion (the constant-velocity model while a
+    # standing robot's matches are refused) would make anything that stands in front of it
+    # look like its body
+    if masking and (has_inc or source == _ICP or source == _PARTIAL):
+        learnt = inc if has_inc else motion
+        learn_scan(ranges, cos, sin, valid_min, valid_max, learnt[0], learnt[1], learnt[2],
+                   mask_settings, mask_state)
+
+
+@jit.inline
+def _first_scan(t, ranges, skip, cos, sin, valid_min, valid_max, odo_has, odo, oseg, chain,
+                settings, rows, grid_xy, order, start, grid, map_state, out):
+    """The first scan (or the first after a reset): the pose chain starts at the odometry
+    pose (else the origin) and the scan's points seed the local map."""
+    pts = icp._scan_points(ranges, skip, cos, sin, valid_min, valid_max,
+                           settings[_S_MIN_RANGE], settings[_S_MAX_RANGE],
+                           int(settings[_S_MAX_POINTS]))
+    lost_map = map_state[icp._ROWS]
+    chain[:] = 0.0
+    map_state[icp._ROWS] = map_state[icp._SCANS] = 0
+    if lost_map:
+        icp._grid_hash(rows, 0, icp.CELL, grid_xy, order, start, grid)
+    pose = odo.copy() if odo_has else np.zeros(3)
+    chain[_HAS_POSE] = 1.0
+    chain[_POSE:_POSE + 3] = pose
+    chain[_STAMP] = t
+    _remember_odometry(odo_has, odo, oseg, chain)
+    _add_key_scan(pts, pose, chain, settings, rows, grid_xy, order, start, grid, map_state)
+    out[_O_SOURCE] = _INIT
+    out[_O_POSE:_O_POSE + 3] = pose
+    out[_O_N_POINTS] = pts.shape[0]
+    out[_O_ODOMETRY] = odo_has
+
+
+@jit.inline
+def _remember_odometry(odo_has, odo, oseg, chain):
+    """The scan's odometry (scanner pose and segment) for the next scan's increment."""
+    chain[_HAS_ODO] = odo_has
+    if odo_has:
+        chain[_ODO:_ODO + 3] = odo
+        chain[_SEGMENT] = oseg
+    else:
+        chain[_SEGMENT] = -1.0
+
+
+@jit.inline
+def _copy_pose_covariance(chain, out):
+    out[_O_POSE_COV:_O_POSE_COV + 9] = chain[_POSE_COV:_POSE_COV + 9]
+
+
+@jit.inline
+def _add_key_scan(pts, pose, chain, settings, rows, grid_xy, order, start, grid, map_state):
+    """The scan at ``pose`` joins the local map (a scan of fewer than 2 points does not)."""
+    if pts.shape[0] < 2:
+        return
+    icp._add_scan(pts, pose, settings[_S_NORMAL_GAP], 0.05, icp.CELL, rows, grid_xy, order,
+                  start, grid, map_state)
+    chain[_HAS_KEY] = 1.0
+    chain[_KEY:_KEY + 3] = pose
+
+
+@jit.inline
+def _moved_since_key_scan(pose, chain, settings):
+    """The scanner moved ``map_min_translation`` or turned ``map_min_rotation`` since the
+    last key scan (or there is none)."""
+    if not chain[_HAS_KEY]:
+        return True
+    d = _between(chain[_KEY:_KEY + 3], pose)
+    return _python_hypot(d[0], d[1]) >= settings[_S_KEY_T] or abs(d[2]) >= settings[_S_KEY_R]
+
+
+@jit.inline
+def _too_fast(x, y, theta, dt, settings):
+    """``(kind, speed)``: a motion ``x, y, theta`` over ``dt`` seconds beyond the platform's
+    limits (kind 1: translation, m/s; 2: rotation, rad/s), or ``(0, 0.0)``; scan stamps
+    jitter, so the step may take ``speed_check_jitter`` longer."""
+    if dt <= 0.0:
+        return 0, 0.0
+    span = dt + settings[_S_JITTER]
+    v = _python_hypot(x, y) / span
+    w = abs(theta) / span
+    if v > settings[_S_SPEED]:
+        return 1, v
+    if w > settings[_S_TURN]:
+        return 2, w
+    return 0, 0.0
+
+
+@jit.inline
+def _odometry_increment(odo_has, odo, oseg, dt, chain, settings, out):
+    """The odometry motion since the previous scan (``out[_O_INC]`` says why there is none:
+    ``_INC_*``, then the kind and the speed of a step too fast)."""
+    inc = np.zeros(3)
+    if not odo_has:
+        out[_O_INC] = _INC_MISSING
+    elif not chain[_HAS_ODO]:
+        out[_O_INC] = _INC_NO_PREVIOUS
+    elif oseg != chain[_SEGMENT]:
+        out[_O_INC] = _INC_JUMPED
+    else:
+        inc = _between(chain[_ODO:_ODO + 3], odo)
+        kind, speed = _too_fast(inc[0], inc[1], inc[2], dt, settings)
+        if kind:
+            out[_O_INC], out[_O_INC + 1], out[_O_INC + 2] = _INC_TOO_FAST, kind, speed
+    return inc
+
+
+@jit.inline
+def _prediction(has_inc, inc, dt, chain, settings, noise):
+    """``(motion, information, constant velocity)``: the odometry increment when usable,
+    else the previous motion (over its time step) scaled to ``dt`` (constant velocity, at
+    most 3 times), and the prior's information (diagonal x, y, theta)."""
+    cv = np.zeros(3)
+    has_motion = chain[_HAS_MOTION] != 0.0
+    if has_motion and not chain[_DT] <= 0.0:
+        f = _at_most(dt / chain[_DT], 3.0)
+        for k in range(3):
+            cv[k] = chain[_MOTION + k] * f
+    if has_inc:
+        return inc, _information(_ODOMETRY_MODEL, inc, settings, noise), cv
+    if not has_motion:
+        return cv, settings[_S_UNKNOWN:_S_UNKNOWN + 3].copy(), cv
+    return cv, _information(_MOTION_MODEL, cv, settings, noise), cv
+
+
+@jit.inline
+def _information(model, m, settings, noise):
+    """The information (diagonal x, y, theta) of a prediction ``m`` of ``model``: the
+    adapted noise, or the fixed model (sigma = per step + per metre * d + per radian * |a|)."""
+    if settings[_S_ADAPTIVE]:
+        vxy, vth = _noise_variance(noise[model], m[0], m[1], m[2])
+        return np.array([1.0 / vxy, 1.0 / vxy, 1.0 / vth])
+    fixed = settings[_S_FIXED + 6 * model:_S_FIXED + 6 * model + 6]
+    d = _python_hypot(m[0], m[1])
+    sxy = fixed[0] + fixed[1] * d
+    sth = fixed[3] + fixed[4] * d + fixed[5] * abs(m[2])
+    ixy = 1.0 / math.pow(sxy, settings[_S_TWO])
+    return np.array([ixy, ixy, 1.0 / math.pow(sth, settings[_S_TWO])])
+
+
+@jit.inline
+def _fused(packed, n_deg, previous, predicted, checks):
+    """Step 4's result (``_match_and_fuse`` fused along the constrained directions):
+    ``(pose, motion, ICP's information, prior used, covariance)``; along degenerate
+    directions (scaled coordinates z = delta / sv) the prediction is kept and ICP gives no
+    information."""
+    pose = packed[_F_POSE:_F_POSE + 3].copy()
+    info = packed[_F_INFO:_F_INFO + 9].copy().reshape(3, 3)
+    lam = packed[_F_PRIOR:_F_PRIOR + 3].copy()
     if not n_deg:
-        return Fused(pose, packed[_F_MOTION:_F_MOTION + 3], info, lam, 0,
-                     packed[_F_COV:_F_COV + 9].reshape(3, 3))
-    # along degenerate directions (scaled coordinates z = delta / sv): the prediction
-    deg = res.eigenvalues < c.degeneracy_threshold
-    sv = np.array([1.0, 1.0, 1.0 / res.scale])
-    z = between(predicted, pose) / sv
-    u = res.eigenvectors[:, ~deg]
-    pose = compose(predicted, sv * (u @ (u.T @ z)))
-    # no ICP information along them
-    v = res.eigenvectors[:, deg]
-    proj = np.eye(3) - v @ v.T
-    s_inv = np.diag(1.0 / sv)
-    info = s_inv @ proj @ np.diag(sv) @ info @ np.diag(sv) @ proj @ s_inv
-    return Fused(pose, between(previous, pose), info, lam, n_deg, _covariance(info, lam))
+        return (pose, packed[_F_MOTION:_F_MOTION + 3].copy(), info, lam,
+                packed[_F_COV:_F_COV + 9].copy().reshape(3, 3))
+    evals = packed[icp.EIGENVALUES:icp.EIGENVALUES + 3]
+    evecs = packed[icp.EIGENVECTORS:icp.EIGENVECTORS + 9].copy().reshape(3, 3)
+    sv = np.array([1.0, 1.0, 1.0 / packed[icp._SCALE]])
+    z = _between(predicted, pose) / sv
+    keep = np.empty(3, np.int64)
+    deg = np.empty(3, np.int64)
+    n_keep = 0
+    for j in range(3):
+        if evals[j] < checks[3]:
+            deg[j - n_keep] = j
+        else:
+            keep[n_keep] = j
+            n_keep += 1
+    # u^T z and u (u^T z), u the constrained eigenvectors, as numpy's BLAS computes them
+    w = np.empty(n_keep)
+    for a in range(n_keep):
+        u = evecs[:, keep[a]]
+        if n_keep == 1:
+            w[a] = (u[0] * z[0] + u[1] * z[1]) + u[2] * z[2]
+        else:
+            w[a] = jit.fma(u[2], z[2], jit.fma(u[0], z[0], u[1] * z[1]))
+    step = np.empty(3)
+    for i in range(3):
+        acc = evecs[i, keep[0]] * w[0]
+        for a in range(1, n_keep):
+            acc = acc + evecs[i, keep[a]] * w[a]
+        step[i] = sv[i] * acc
+    pose = _compose(predicted, step)
+    # no ICP information along them: S^-1 P S H S P S^-1, P = I - v v^T
+    proj = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for a in range(3 - n_keep):
+                acc = jit.fma(evecs[i, deg[a]], evecs[j, deg[a]], acc)
+            proj[i, j] = (1.0 if i == j else 0.0) - acc
+    s, s_inv = np.zeros((3, 3)), np.zeros((3, 3))
+    for k in range(3):
+        s[k, k], s_inv[k, k] = sv[k], 1.0 / sv[k]
+    info = _matmul3(_matmul3(_matmul3(_matmul3(_matmul3(_matmul3(s_inv, proj), s), info), s),
+                             proj), s_inv)
+    return pose, _between(previous, pose), info, lam, _covariance(info, lam)
 
 
-def implausible(motion, predicted, pose, odometry, dt: float, config: EgoMotionConfig) -> str:
+@jit.inline
+def _matmul3(a, b):
+    """``a @ b`` of 3x3 matrices as numpy's BLAS computes it: each entry a sequence of fused
+    multiply-adds from zero."""
+    out = np.empty((3, 3))
+    for p in range(3):
+        for q in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc = jit.fma(a[p, k], b[k, q], acc)
+            out[p, q] = acc
+    return out
+
+
+@jit.inline
+def _implausible(motion, predicted, pose, has_inc, dt, settings, out):
     """Step 5, the fused match's checks: the platform's speed limits and, with odometry, the
-    correction of the ``predicted`` pose ('' when it passes)."""
-    c = config
-    speed = too_fast(motion, dt, c)
-    if speed:
-        return f'match implies {speed}'
-    if odometry is not None:
-        cx, cy, ct = between(predicted, pose).tolist()
-        dist = math.hypot(cx, cy)
-        if dist > c.max_correction_translation or abs(ct) > c.max_correction_rotation:
-            return (f'match disagrees with odometry by {dist:.2f} m / '
-                    f'{math.degrees(abs(ct)):.1f} deg')
-    return ''
+    correction of the ``predicted`` pose (``out[_O_WHY]``: ``_WHY_TOO_FAST``, kind and
+    speed; ``_WHY_DISAGREES``, distance and angle)."""
+    kind, speed = _too_fast(motion[0], motion[1], motion[2], dt, settings)
+    if kind:
+        out[_O_WHY], out[_O_WHY + 1], out[_O_WHY + 2] = _WHY_TOO_FAST, kind, speed
+        return
+    if has_inc:
+        d = _between(predicted, pose)
+        dist = _python_hypot(d[0], d[1])
+        if dist > settings[_S_CORRECTION_T] or abs(d[2]) > settings[_S_CORRECTION_R]:
+            out[_O_WHY], out[_O_WHY + 1], out[_O_WHY + 2] = _WHY_DISAGREES, dist, abs(d[2])
 
 
-def _inverse_diagonal(m):
-    """Diagonal of the inverse of a symmetric positive 3x3 matrix (None when singular)."""
-    (a, b, c), (_, d, e), (_, _, f) = m.tolist()
+@jit.inline
+def _learn_prior(packed, information, previous, has_inc, inc, cv, has_history, noise,
+                 settings):
+    """The prediction's disagreement with an accepted, fully constrained ICP motion (before
+    fusion) feeds its adapted noise (the motion model's only once a motion was seen)."""
+    icp_motion = _between(previous, packed[icp.POSE:icp.POSE + 3])
+    a, b, c = information[0, 0], information[0, 1], information[0, 2]
+    d, e, f = information[1, 1], information[1, 2], information[2, 2]
     ca, cd, cf = d * f - e * e, a * f - c * c, a * d - b * b
     det = a * ca + b * (c * e - b * f) + c * (b * e - c * d)
     if not det > 0.0:
-        return None
-    return (ca / det, cd / det, cf / det)
-
-
-# ------------------------------------------------------------------ the fusion's kernels
-#
-# The arithmetic of the numpy formulation they replaced, operation for operation (results
-# equal bit for bit): Python's ``x ** 2`` is libm's pow, not always ``x * x``, so the gate's
-# square is taken with a run-time exponent (``settings[4]`` = 2), which the compiler keeps a
-# pow call; numpy's 3x3 solve and inverse are LAPACK's dgesv, as numba's np.linalg.solve.
+        return
+    noise_settings = settings[_S_NOISE:_S_NOISE + 3]
+    if has_inc:
+        err = _between(inc, icp_motion)
+        _update_noise(inc[0], inc[1], inc[2], err[0], err[1], err[2], ca / det, cd / det,
+                      cf / det, noise_settings, noise[_ODOMETRY_MODEL])
+    elif has_history:
+        err = _between(cv, icp_motion)
+        _update_noise(cv[0], cv[1], cv[2], err[0], err[1], err[2], ca / det, cd / det,
+                      cf / det, noise_settings, noise[_MOTION_MODEL])
 
 
 @jit.kernel
 def _fuse(icp_pose, hessian, sum_weights, n_deg, previous, predicted, prior, settings):
-    """:func:`fuse`'s algebra: ``(pose, motion, information, prior used, covariance)``.
+    """The fusion's algebra: ``(pose, motion, information, prior used, covariance)``.
     ICP's information ``H / (sum w * model_sigma^2)``; with no degenerate direction the
     prior's information bounded by ``prior_max_ratio`` times ICP's and gated
     (``prior_gate``); the fused pose one information-weighted step from the ICP pose
     towards the prediction. With degenerate directions (``n_deg`` > 0) the motion and the
-    covariance are left to the caller (NaN), which projects them out first."""
+    covariance are left to the caller (NaN), which projects them out first (:func:`_fused`)."""
     sigma2, max_ratio, gate, gate2, power = (settings[0], settings[1], settings[2],
                                              settings[3], settings[4])
     info = hessian / (_at_least(sum_weights, 1e-12) * sigma2)
@@ -934,7 +1208,7 @@ _N_DEG, _F_POSE, _F_MOTION, _F_INFO, _F_PRIOR, _F_COV, _PACKED = \
 @jit.kernel
 def _match_and_fuse(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
                     max_points, min_points, predicted, schedule, icp_settings, rows,
-                    grid_rows, order, start, grid, previous, prior, checks):
+                    grid_xy, order, start, grid, previous, prior, checks):
     """Steps 3-4 for one scan: its points, their ICP match from the ``predicted`` pose, the
     checks of the match (:func:`_verdict`) and, when it passes them, its fusion with the
     prediction (information ``prior``; :func:`_fuse`). Returns the points and the packed
@@ -943,7 +1217,7 @@ def _match_and_fuse(ranges, skip, cos, sin, valid_min, valid_max, min_range, max
     out = np.full(_PACKED, np.nan)
     pts, matched = icp._points_and_align(
         ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range, max_points,
-        min_points, predicted, schedule.shape[0], schedule, icp_settings, rows, grid_rows,
+        min_points, predicted, schedule.shape[0], schedule, icp_settings, rows, grid_xy,
         order, start, grid, out)
     verdict, n_deg = _verdict(out, matched, pts.shape[0], checks)
     out[_VERDICT] = verdict
@@ -1052,32 +1326,36 @@ def _between(a, b):
     return out
 
 
+def _settings(config: EgoMotionConfig, prior: MotionPrior, matcher: ScanMatcher) -> np.ndarray:
+    """The estimator's settings (``_S_*``)."""
+    c = config
+    mount = (c.mount_x, c.mount_y, c.mount_yaw)
+    out = np.array([c.min_points, c.max_points, c.min_range, c.max_range,
+                    c.max_translation_speed, c.max_rotation_speed, c.speed_check_jitter,
+                    c.max_correction_translation, c.max_correction_rotation,
+                    c.max_lost_scans, c.map_min_translation, c.map_min_rotation,
+                    c.normal_max_gap, float(any(mount)), *mount, 2.0, *prior.settings(),
+                    *matcher.checks], dtype=float)
+    assert out.size == _SETTINGS
+    return out
+
+
 def _exercise_kernels() -> None:
-    """The fusion's and the adaptive prior's kernels compiled (or loaded) for the argument
-    types of real scans."""
-    h = np.diag([4.0, 4.0, 1.0])
-    z3 = np.zeros(3)
-    one = np.ones(3)
-    settings = np.array([1e-4, 10.0, 5.0, 25.0, 2.0])
-    for n_deg in (0, 1):
-        _fuse(z3, h, 1.0, n_deg, z3, np.array([0.1, 0.0, 0.01]), one, settings)
-    _covariance(h, one)
-    _update_noise(0.1, 0.0, 0.01, 0.01, 0.0, 0.001, 1e-5, 1e-5, 1e-7,
-                  np.array([0.98, 5.0, 9.0]), np.zeros((3, 3)), np.zeros((2, 3)), z3.copy(),
-                  np.zeros(1), np.full((2, 3), 1e-4), np.full((2, 3), 1e-4))
+    """:func:`_scan_step` compiled (or loaded) for the argument types of real scans (two
+    scans of a small room with odometry, with and without a self-mask; every path of the
+    kernel is compiled with it)."""
+    from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
 
-
-def _exercise_match_and_fuse() -> None:
-    """:func:`_match_and_fuse` compiled (or loaded) for the argument types of real scans."""
-    matcher = ScanMatcher(EgoMotionConfig(min_points=3))
-    _, cos, sin = beam_table(-1.5, 0.075, 41)
-    ranges = 2.0 + 0.1 * np.cos(3.0 * np.arange(41) * 0.075)
-    scan = Scan(stamp=0.0, ranges=ranges, angle_min=-1.5, angle_increment=0.075,
-                range_min=0.0, range_max=10.0)
-    pts, _ = matcher.match(scan)
-    matcher.add_key_scan(np.zeros(3), pts)
-    for skip in (None, np.zeros(41, np.bool_)):
-        matcher.match_and_fuse(scan, np.zeros(3), np.zeros(3), np.ones(3), skip)
+    angles = np.linspace(-1.5, 1.5, 61)
+    ranges = 2.0 / np.maximum(np.abs(np.cos(angles)), 0.3)
+    ranges[0] = np.nan
+    for mask in (None, SelfMask(SelfMaskConfig())):
+        est = EgoMotionEstimator(EgoMotionConfig(min_points=3), self_mask=mask)
+        est.rehearses = False
+        for k in range(2):
+            est.add_odometry(0.1 * k, (0.0, 0.0, 0.0))
+            est.update(Scan(stamp=0.1 * k, ranges=ranges, angle_min=-1.5,
+                            angle_increment=0.05, range_min=0.05, range_max=8.0))
 
 
 # -------------------------------------------------------------------------- estimator
@@ -1087,24 +1365,38 @@ class EgoMotionEstimator:
     """Odometry prior plus point-to-line ICP against a short local map (module docstring).
 
     Its roles: the odometry buffer (``odometry``), the prediction and its adaptive prior
-    (``prior``), the match (``matcher``) and the fusion (:func:`fuse`); the estimator holds
-    the pose chain.
+    (``prior``), the match (``matcher``) and, when given, the robot's own body
+    (``self_mask``: masked before the match, learnt after it); the estimator holds the pose
+    chain (``chain``) and runs them per scan in one kernel call (:func:`_scan_step`).
     """
 
-    def __init__(self, config: EgoMotionConfig | None = None):
+    def __init__(self, config: EgoMotionConfig | None = None, self_mask=None):
         self.config = config or EgoMotionConfig()
         self.odometry = OdometryBuffer(self.config)
         self.prior = MotionPrior(self.config)
         self.matcher = ScanMatcher(self.config)
+        self.self_mask = self_mask
+        self.settings = _settings(self.config, self.prior, self.matcher)
+        self.chain = np.zeros(_CHAIN)
         self.stats: Counter = Counter()
         self._notes: Counter = Counter()
+        #: whether this estimator's first scan may rehearse the process's first match
+        #: (:func:`_rehearse`; not the warm-ups' estimators, whose scans are synthetic)
+        self.rehearses = True
         self._reset_state()
+        jit.compiled('ego-motion kernel', _exercise_kernels)
 
     # ----------------------------------------------------------------- public API
 
     def add_odometry(self, stamp: float, pose) -> None:
         """Feed one odometry sample (platform pose ``x, y, theta`` in the odometry frame)."""
         note = self.odometry.add(stamp, pose)
+        if note:
+            self._note(*note)
+
+    def add_finite_odometry(self, t: float, x: float, y: float, theta: float) -> None:
+        """:meth:`add_odometry` of a sample known to be four finite floats."""
+        note = self.odometry.add_finite(t, x, y, theta)
         if note:
             self._note(*note)
 
@@ -1115,131 +1407,158 @@ class EgoMotionEstimator:
         self.stats['resets'] += 1
         self._reset_state()
 
-    def update(self, scan: Scan, skip: np.ndarray | None = None) -> EgoMotionEstimate:
+    @property
+    def pose(self) -> np.ndarray | None:
+        """The pose of the last scan (None before the first, or after a reset)."""
+        return self.chain[_POSE:_POSE + 3].copy() if self._stamp is not None else None
+
+    def update(self, scan: Scan) -> EgoMotionEstimate:
         """Estimate the motion for ``scan`` (the steps of the module docstring), without the
-        beams ``skip`` (bool per beam, e.g. the robot's body) leaves out."""
+        beams the self-mask leaves out (and learning from it) when there is one."""
         t = float(scan.stamp)
         if self._stamp is not None and t == self._stamp:
             return self._none(t, 'scan stamp equals the previous one (skipped)')
         if self._stamp is not None and t < self._stamp:
             self.reset(f'time went backwards ({self._stamp:.3f} -> {t:.3f} s)')
-        odo = self.odometry.scanner_pose(t)
-        if self._pose is None:
-            return self._init(t, self.matcher.match(scan, None, skip)[0], odo)
-        dt = t - self._stamp
-        # 1-2. the prediction: the odometry increment or constant velocity, and its prior
-        inc, no_inc = odometry_increment(self._odo, odo, dt, self.config)
-        if inc is None:
-            self._note('no odometry', f'scan at {t:.3f} s: no odometry increment '
-                       f'({no_inc}): constant-velocity prediction')
-        pred = self.prior.predict(inc, self._motion, self._dt, dt)
-        predicted = compose(self._pose, pred.motion)
-        # 3-4. the match from the predicted pose, fused with the prediction when it passes
-        # the checks (one kernel call); 5. the fused motion's checks
-        pts, res, verdict, packed = self.matcher.match_and_fuse(
-            scan, predicted, self._pose, pred.information, skip)
-        fused, why = self._fuse(res, verdict, packed, pts.shape[0], pred, predicted, dt)
-        if fused is not None:
-            out, reseed = self._accepted(t, res, pred, fused, no_inc, pts.shape[0]), False
+        odo, seg, missing = self.odometry.at_scan(t)
+        ox, oy, oth = odo if odo is not None else (0.0, 0.0, 0.0)
+        n = scan.ranges.size
+        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), n)
+        local = self.matcher.map
+        local.reserve(min(n, self.config.max_points))
+        mask = self.self_mask
+        if mask is not None:
+            mask.fit(scan)
+            mask_settings, mask_state, masked = mask.settings, mask.state, np.empty(n)
         else:
-            out, reseed = self._coasting(t, res, pred, why, no_inc, pts.shape[0])
-        self._advance(t, out, odo, dt, pts, reseed)
-        return out
+            mask_settings, mask_state, masked = _NO_MASK
+        out = np.empty(_OUT)
+        args = [t, scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+                abs(float(scan.angle_increment)), odo is not None, ox, oy, oth, seg,
+                self.chain, self.settings, self.prior.noise, self.matcher.schedule.distances,
+                self.matcher.schedule.settings, *local.buffers, mask_settings, mask_state,
+                masked, out]
+        _scan_step(*args)
+        if out[_O_SOURCE] == _INIT and self.rehearses and not _rehearsed:
+            _rehearse(args)
+        if mask is not None:
+            mask.masked_ranges = masked
+            mask.applied = masked if out[_O_MASKED] else None
+        previous, self._stamp = self._stamp, t
+        return self._estimate(t, out, previous, missing)
 
     # ------------------------------------------------------------------- internals
 
-    def _fuse(self, res, verdict, packed, n_pts, pred, predicted,
-              dt) -> tuple[Fused | None, str]:
-        """``(fused, '')``, or ``(None, why the match is not used)``."""
-        if verdict == UNMATCHED:
-            return None, self.matcher.unmatchable(n_pts)
-        if verdict != FUSED:
-            return None, self.matcher.refusal(res, verdict)
-        fused = fuse(res, packed, self._pose, predicted, self.config)
-        why = implausible(fused.motion, predicted, fused.pose, pred.odometry, dt, self.config)
-        return (None, why) if why else (fused, '')
-
-    def _accepted(self, t, res, pred, fused, no_inc, n_pts) -> EgoMotionEstimate:
-        """An accepted match: the fused motion; the prior learns from a full match."""
-        if not fused.degenerate and self.config.adaptive_prior:
-            self.prior.learn(pred, between(self._pose, res.pose), fused.information,
-                             self._motion is not None)
-        n_deg = fused.degenerate
-        if n_deg and pred.odometry is not None:
-            source, reason = SOURCE_PARTIAL, f'{n_deg} degenerate direction(s): odometry along them'
-        elif n_deg:
-            source = SOURCE_PARTIAL
-            reason = (f'{n_deg} degenerate direction(s) and no odometry ({no_inc}): '
-                      f'constant-velocity guess along them')
+    def _estimate(self, t: float, out: np.ndarray, previous: float | None,
+                  missing: str) -> EgoMotionEstimate:
+        """The estimate of what :func:`_scan_step` found (``out``), its reason and notes."""
+        v = out.tolist()
+        source = SOURCES[int(v[_O_SOURCE])]
+        pose, pose_cov = out[_O_POSE:_O_POSE + 3], out[_O_POSE_COV:_O_POSE_COV + 9]
+        if source == SOURCE_INIT:
+            reason = 'first scan: pose from odometry' if v[_O_ODOMETRY] else \
+                f'first scan: pose at the origin ({missing})'
+            self.stats[SOURCE_INIT] += 1
+            return EgoMotionEstimate(stamp=t, pose=pose, motion=out[_O_MOTION:_O_MOTION + 3],
+                                     covariance=out[_O_COV:_O_COV + 9].reshape(3, 3),
+                                     source=source, reason=reason,
+                                     n_points=int(v[_O_N_POINTS]),
+                                     pose_covariance=pose_cov.reshape(3, 3))
+        no_inc = ''
+        if v[_O_INC] != _INC_OK:
+            no_inc = self._no_increment(v, missing)
+            self._note('no odometry', f'scan at {t:.3f} s: no odometry increment '
+                       f'({no_inc}): constant-velocity prediction')
+        has_inc = v[_O_ODOMETRY] != 0.0
+        coasting = source in (SOURCE_ODOMETRY, SOURCE_CONSTANT_VELOCITY)
+        if not coasting:
+            n_deg = int(v[_O_N_DEG])
+            if n_deg and has_inc:
+                reason = f'{n_deg} degenerate direction(s): odometry along them'
+            elif n_deg:
+                reason = (f'{n_deg} degenerate direction(s) and no odometry ({no_inc}): '
+                          f'constant-velocity guess along them')
+            else:
+                reason = 'icp' if has_inc else f'icp without odometry ({no_inc})'
         else:
-            source = SOURCE_ICP
-            reason = 'icp' if pred.odometry is not None else f'icp without odometry ({no_inc})'
-        self._lost = 0
-        return self._estimate(t, fused.motion, fused.covariance, source, reason, pred, res,
-                              n_pts)
-
-    def _coasting(self, t, res, pred, why, no_inc, n_pts) -> tuple[EgoMotionEstimate, bool]:
-        """No match: the platform coasts on its prediction; the pose chain goes on. After
-        ``max_lost_scans`` such scans (or with no map to match against) the map is re-seeded
-        from the scan (the second value)."""
-        c = self.config
-        if pred.odometry is not None:
-            source, reason = SOURCE_ODOMETRY, f'ICP refused: {why}'
-            self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): odometry used')
-        else:
-            source = SOURCE_CONSTANT_VELOCITY
-            reason = f'ICP refused ({why}) and no odometry ({no_inc}): coasting'
-            self._note('coasting', f'scan at {t:.3f} s: ICP refused ({why}) and no odometry '
-                       f'({no_inc}): constant-velocity motion')
-        map_ok = self.matcher.map.n_points >= c.min_points
-        if res is not None or not map_ok:
-            self._lost += 1  # a match was tried and refused, or there is nothing to match
-        reseed = n_pts >= c.min_points and (not map_ok or self._lost >= c.max_lost_scans)
-        if reseed:
-            reason += '; local map re-seeded from this scan'
-            self._note('map re-seeded', f'scan at {t:.3f} s: {self._lost} scans without a '
-                       f'match: the local map is re-seeded from this scan (the pose chain '
-                       f'continues)')
-            self.stats['map re-seeded'] += 1
-        return self._estimate(t, pred.motion, np.diag(1.0 / pred.information), source, reason,
-                              pred, res, n_pts, coasting=True), reseed
-
-    def _estimate(self, t, motion, cov, source, reason, pred, res, n_pts,
-                  coasting=False) -> EgoMotionEstimate:
+            why = self._why(v)
+            if has_inc:
+                reason = f'ICP refused: {why}'
+                self._note('icp refused', f'scan at {t:.3f} s: ICP refused ({why}): odometry '
+                           f'used')
+            else:
+                reason = f'ICP refused ({why}) and no odometry ({no_inc}): coasting'
+                self._note('coasting', f'scan at {t:.3f} s: ICP refused ({why}) and no '
+                           f'odometry ({no_inc}): constant-velocity motion')
+            if v[_O_RESEED]:
+                reason += '; local map re-seeded from this scan'
+                self._note('map re-seeded', f'scan at {t:.3f} s: {int(v[_O_LOST])} scans '
+                           f'without a match: the local map is re-seeded from this scan (the '
+                           f'pose chain continues)')
+                self.stats['map re-seeded'] += 1
+        self.stats[source] += 1
         diag = {}
-        if res is not None:
-            diag = dict(inlier_ratio=res.inlier_ratio, rms=res.rms, iterations=res.iterations,
-                        min_eigenvalue=float(res.eigenvalues[0]))
-        return EgoMotionEstimate(stamp=t, pose=compose(self._pose, motion), motion=motion,
-                                 covariance=cov, source=source, reason=reason,
-                                 dt=t - self._stamp, odometry_motion=pred.odometry,
-                                 n_points=n_pts, coasting=coasting, **diag)
+        if v[_O_MATCHED]:
+            diag = dict(inlier_ratio=v[_O_INLIER_RATIO], rms=v[_O_RMS],
+                        iterations=int(v[_O_ITERATIONS]), min_eigenvalue=v[_O_MIN_EIG])
+        return EgoMotionEstimate(
+            stamp=t, pose=pose, motion=out[_O_MOTION:_O_MOTION + 3],
+            covariance=out[_O_COV:_O_COV + 9].reshape(3, 3), source=source, reason=reason,
+            dt=t - previous, odometry_motion=out[_O_ODOMETRY + 1:_O_ODOMETRY + 4] if has_inc
+            else None, n_points=int(v[_O_N_POINTS]), coasting=coasting,
+            pose_covariance=pose_cov.reshape(3, 3), **diag)
 
-    def _advance(self, t, est: EgoMotionEstimate, odo, dt, pts, reseed: bool) -> None:
-        """The pose chain moves on to the scan; the scan joins the local map when it was
-        placed by ICP or odometry (a guess would pollute the map) and has moved since the
-        last key scan, or re-seeds it."""
-        self._pose = est.pose.copy()
-        self._stamp = t
-        self._odo = odo[:2] if odo[0] is not None else (None, -1)
-        self._motion, self._dt = est.motion, dt
-        if reseed:
-            self.matcher.clear()
-            self._lost = 0
-            self.matcher.add_key_scan(self._pose, pts)
-        elif est.source != SOURCE_CONSTANT_VELOCITY and \
-                self.matcher.moved_since_key_scan(self._pose):
-            self.matcher.add_key_scan(self._pose, pts)
-        self.stats[est.source] += 1
+    def _no_increment(self, v: list, missing: str) -> str:
+        """Why there is no odometry increment (``_O_INC``)."""
+        code = v[_O_INC]
+        if code == _INC_MISSING:
+            return missing
+        if code == _INC_NO_PREVIOUS:
+            return 'no odometry at the previous scan'
+        if code == _INC_JUMPED:
+            return 'odometry jumped since the previous scan'
+        return f'odometry step implies {self._speed(v[_O_INC + 1], v[_O_INC + 2])} (jump?)'
+
+    def _why(self, v: list) -> str:
+        """Why the match was not used (``_O_WHY``)."""
+        c = self.config
+        code = v[_O_WHY]
+        if code == _WHY_FEW_POINTS:
+            return f'too few valid points ({int(v[_O_N_POINTS])} < {c.min_points})'
+        if code == _WHY_SMALL_MAP:
+            return f'local map too small ({int(v[_O_WHY + 1])} points)'
+        if code == FEW_INLIERS:
+            return f'only {int(v[_O_WHY + 1])} points matched'
+        if code == LOW_OVERLAP:
+            return (f'overlap {100 * v[_O_INLIER_RATIO]:.0f} % < '
+                    f'{100 * c.min_inlier_ratio:.0f} %')
+        if code == HIGH_RESIDUAL:
+            return f'residual {v[_O_RMS]:.3f} m > {c.max_rms:g} m'
+        if code == NOT_CONVERGED:
+            return 'did not converge'
+        if code == NOT_FINITE:
+            return 'non-finite result'
+        if code == DEGENERATE:
+            return 'degenerate in every direction'
+        if code == _WHY_TOO_FAST:
+            return f'match implies {self._speed(v[_O_WHY + 1], v[_O_WHY + 2])}'
+        if code == _WHY_DISAGREES:
+            return (f'match disagrees with odometry by {v[_O_WHY + 1]:.2f} m / '
+                    f'{math.degrees(v[_O_WHY + 2]):.1f} deg')
+        return ''
+
+    def _speed(self, kind: float, speed: float) -> str:
+        """A speed beyond the platform's limits (kind 1: translation, 2: rotation)."""
+        c = self.config
+        if kind == 1:
+            return f'{speed:.2f} m/s > {c.max_translation_speed:g} m/s'
+        return (f'{math.degrees(speed):.0f} deg/s > '
+                f'{math.degrees(c.max_rotation_speed):.0f} deg/s')
 
     def _reset_state(self) -> None:
         self.matcher.clear()
-        self._pose: np.ndarray | None = None
+        self.chain[:] = 0.0
         self._stamp: float | None = None
-        self._odo = (None, -1)              # odometry pose and segment of the previous scan
-        self._motion: np.ndarray | None = None
-        self._dt = 0.0
-        self._lost = 0
 
     def _note(self, kind: str, message: str, level: int = logging.WARNING) -> None:
         """Log ``message``: first time, then at the 10th, 100th, ... time for its kind."""
@@ -1251,20 +1570,6 @@ class EgoMotionEstimator:
         else:
             log.debug('%s', message)
 
-    def _init(self, t: float, pts: np.ndarray, odo) -> EgoMotionEstimate:
-        self._reset_state()
-        if odo[0] is not None:
-            self._pose, reason = odo[0].copy(), 'first scan: pose from odometry'
-            self._odo = odo[:2]
-        else:
-            self._pose, reason = np.zeros(3), f'first scan: pose at the origin ({odo[2]})'
-        self._stamp = t
-        self.matcher.add_key_scan(self._pose, pts)
-        self.stats[SOURCE_INIT] += 1
-        return EgoMotionEstimate(stamp=t, pose=self._pose.copy(), motion=np.zeros(3),
-                                 covariance=np.zeros((3, 3)), source=SOURCE_INIT,
-                                 reason=reason, n_points=pts.shape[0])
-
     def _none(self, t: float, reason: str) -> EgoMotionEstimate:
         self._note('no pose', f'scan at {t:.3f} s has no pose: {reason}')
         self.stats[SOURCE_NONE] += 1
@@ -1272,6 +1577,25 @@ class EgoMotionEstimator:
         return EgoMotionEstimate(stamp=t, pose=nan3, motion=nan3.copy(),
                                  covariance=np.full((3, 3), np.nan), source=SOURCE_NONE,
                                  reason=reason)
+
+
+#: ``_scan_step``'s self-mask arguments without a self-mask.
+_NO_MASK = (np.zeros(0), np.zeros((0, 0)), np.zeros(0))
+#: Whether this process has rehearsed a match (:func:`_rehearse`).
+_rehearsed: list[bool] = []
+
+
+def _rehearse(args: list) -> None:
+    """The process's first scan, which started a pose chain (``args``: its
+    :func:`_scan_step` call), matched once more a little later against the map it seeded,
+    on copies of every state it would change (nothing of it is kept): the processor meets
+    the match's code with real data here, and the second scan runs at full speed (about
+    0.1 ms more for the first scan, once per process)."""
+    _rehearsed.append(True)
+    copies = [a.copy() if isinstance(a, np.ndarray) and a.flags.writeable else a
+              for a in args]
+    copies[0] = args[0] + 0.1
+    _scan_step(*copies)
 
 
 # ---------------------------------------------------------------------------- offline

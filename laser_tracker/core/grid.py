@@ -193,6 +193,13 @@ SURFACE_RMS = 0.03
 SURFACE_LENGTH = 1.0
 
 
+@jit.inline
+def _within(dx, dy, limit):
+    """``math.hypot(dx, dy) < limit`` (hypot only where the squares leave it open)."""
+    side = jit.compare_length(dx, dy, limit)
+    return side < 0 or (side == 0 and math.hypot(dx, dy) < limit)
+
+
 @jit.kernel
 def _sign(x):
     """``np.sign``: 1, -1, 0 (a NaN stays NaN)."""
@@ -277,8 +284,8 @@ def _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free):
             v = (qx[k], qy[k], qx[k] * qx[k], qx[k] * qy[k], qy[k] * qy[k])
             for c in range(5):
                 cum[k + 1, c] = v[c] if k == 0 else cum[k, c] + v[c]
-            first[k] = k if k == 0 or math.hypot(qx[k] - qx[k - 1], qy[k] - qy[k - 1]) \
-                >= settings[_JUMP] else first[k - 1]
+            first[k] = k if k == 0 or not _within(qx[k] - qx[k - 1], qy[k] - qy[k - 1],
+                                                  settings[_JUMP]) else first[k - 1]
         for k in range(nv - 1, -1, -1):
             last[k] = k if k == nv - 1 or first[k + 1] == k + 1 else last[k + 1]
     cos_graze = settings[_COS_GRAZE]
@@ -338,11 +345,20 @@ def _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free):
 
 
 @jit.kernel
-def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free, occupied):
+def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free, occupied,
+           marks, meta, about):
     """One scan's grid: ``free[:n]`` (float32) the free range of every beam, ``free[n]`` = -1
     (the ray table's "no beam"), its end points' cells marked OCCUPIED in ``occupied`` (the
-    padded buffer, flat). Returns the end points inside the grid (beam order, scanner
-    frame), their cell indices (float) and flat indices (unpadded grid, then padded)."""
+    padded buffer, flat; first cleared: the cells ``marks`` of its previous grid, or all
+    when ``marks`` is empty), and ``about`` (pose, stamp, beam geometry) into ``meta``.
+    Returns the end points inside the grid (beam order, scanner frame), their cell indices
+    (float) and flat indices (unpadded grid, then padded)."""
+    if marks.size:
+        for p in marks:
+            occupied[p] = UNKNOWN
+    else:
+        occupied[:] = UNKNOWN
+    meta[:] = about
     n = r.size
     res = settings[_RES]
     nv = 0
@@ -419,7 +435,8 @@ def cell_value(stack, lazy, free, beam, reach, k, p):
     freed it (``lazy[k]``: the buffer holds only the marks)."""
     v = stack[k, p]
     if v == UNKNOWN and lazy[k] and reach[p] < free[k, beam[p]]:
-        return FREE
+        v = FREE
+    jit.alive((stack, lazy, free, beam, reach))       # one exit: no reference counting
     return v
 
 
@@ -591,21 +608,18 @@ class GridBuilder:
             self.free = wider
         index = self._which
         self._which = (index + 1) % self.stack.shape[0]
-        buffer = self._flat_stack[index]
         marks = self._marks[index]
-        if marks is None:
-            buffer.fill(UNKNOWN)
-        else:
-            buffer[marks] = UNKNOWN
-        _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), beams)
+        angle_min, increment = float(scan.angle_min), float(scan.angle_increment)
+        _, cos, sin = beam_table(angle_min, increment, beams)
         free = self.free[index]
-        pts, ij, flat, marks = _build(scan.ranges, cos, sin, max(scan.range_min, 1e-6),
-                                      float(scan.range_max),
-                                      min(c.no_return_free, scan.range_max), self.settings,
-                                      self.cells, self.echo, free, buffer)
+        x, y, theta = pose
+        pts, ij, flat, marks = _build(
+            scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+            min(c.no_return_free, scan.range_max), self.settings, self.cells, self.echo, free,
+            self._flat_stack[index], _NO_MARKS if marks is None else marks, self.meta[index],
+            np.array([x, y, theta, scan.stamp, angle_min, increment, beams], dtype=float))
         self._marks[index] = marks
         self.lazy[index] = True
-        self.meta[index] = (*pose, scan.stamp, scan.angle_min, scan.angle_increment, beams)
         return GridFrame(builder=self, index=index, points=pts, ij=ij, flat=flat,
                          free=free[:beams], angle_min=float(scan.angle_min),
                          angle_increment=float(scan.angle_increment))
@@ -634,7 +648,10 @@ class GridHistory:
 
     def push(self, frame: GridFrame) -> None:
         self.frames.appendleft(frame)
-        self.order = np.array([f.index for f in self.frames], np.intp)
+        order = np.empty(len(self.frames), np.intp)
+        order[0] = frame.index
+        order[1:] = self.order[:order.size - 1]
+        self.order = order
 
     def clear(self) -> None:
         self.frames.clear()
@@ -706,6 +723,8 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 
 
 # Stand-ins for a whole grid's lookups (no ray table), typed as the builder's arrays.
+#: ``_build``'s ``marks`` of a buffer without (clear all of it); writable, as marks are.
+_NO_MARKS = np.zeros(0, np.intp)
 _NO_BEAM = _read_only(np.zeros(1, np.intp))
 _NO_REACH = _read_only(np.full(1, np.inf, np.float32))
 _NO_FREE = np.zeros((1, 1), np.float32)

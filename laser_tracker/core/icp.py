@@ -32,7 +32,6 @@ Hessian is for that parametrisation.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +50,9 @@ _KERNEL_RATIO, _STEPS, _TOL_T, _TOL_R, _DAMPING, _CONV_T, _CONV_R, _STRIDE, _N_C
 _NX, _NY, _NQ = 2, 3, 4
 #: Grid description layout: origin, 1 / cell, cell, cells along x and y, hash mask.
 _OX, _OY, _INV, _SIZE, _NCX, _NCY, _MASK = range(7)
+#: A local map's state (int64): its rows, its scans, the most scans it keeps, and from
+#: ``_SIZES`` on each scan's rows, oldest first.
+_ROWS, _SCANS, _MOST, _SIZES = range(4)
 
 
 # ------------------------------------------------------------------------------ kernels
@@ -72,8 +74,8 @@ def _normals(points, max_gap, gap_ratio):
     for i in range(m - 1):
         dx = points[i + 1, 0] - points[i, 0]
         dy = points[i + 1, 1] - points[i, 1]
-        if _linked(points, i, dx, dy, math.sqrt(min(rng2[i + 1], rng2[i])), max_gap,
-                   gap_ratio):
+        if _linked(points[i, 0], points[i, 1], points[i + 1, 0], points[i + 1, 1], dx, dy,
+                   math.sqrt(min(rng2[i + 1], rng2[i])), max_gap, gap_ratio):
             tx[i] += dx       # forward difference where linked
             ty[i] += dy
             tx[i + 1] += dx   # backward difference where linked
@@ -92,11 +94,13 @@ def _normals(points, max_gap, gap_ratio):
 
 
 @jit.inline
-def _linked(points, i, dx, dy, near, max_gap, gap_ratio):
-    """``hypot(dx, dy) < max_gap + gap_ratio * min(hypot(p[i + 1]), hypot(p[i]))``: the
-    link test of :func:`_normals`. Square roots of the squared lengths (``near``: of the
-    nearer point's range) decide unless they are within a relative 1e-9 of the limit (far
-    above their rounding errors and hypot's), where hypot does: it costs more."""
+def _linked(x0, y0, x1, y1, dx, dy, near, max_gap, gap_ratio):
+    """``hypot(dx, dy) < max_gap + gap_ratio * min(hypot(x1, y1), hypot(x0, y0))``: the link
+    test of :func:`_normals` between consecutive points ``(x0, y0)`` and ``(x1, y1)``.
+    Square roots of the squared lengths (``near``: of the nearer point's range) decide
+    unless they are within a relative 1e-9 of the limit (far above their rounding errors
+    and hypot's), where hypot does: it costs more. (Coordinates, not the points' array: an
+    array read in one branch only would cost reference counting per call.)"""
     limit = max_gap + gap_ratio * near
     if max_gap >= 0.0 and 0.0 <= gap_ratio <= 1e6 and 1e-100 < limit < 1e100 and \
             abs(dx) < 1e100 and abs(dy) < 1e100:        # no overflow, nothing lost below
@@ -105,21 +109,38 @@ def _linked(points, i, dx, dy, near, max_gap, gap_ratio):
             return True
         if length > limit * (1.0 + 1e-9):
             return False
-    return math.hypot(dx, dy) < max_gap + gap_ratio * min(
-        math.hypot(points[i + 1, 0], points[i + 1, 1]), math.hypot(points[i, 0], points[i, 1]))
+    return math.hypot(dx, dy) < max_gap + gap_ratio * min(math.hypot(x1, y1),
+                                                          math.hypot(x0, y0))
 
 
 @jit.kernel
-def _add_scan(points, pose, max_gap, gap_ratio, rows, keep_from, cell):
-    """``rows[keep_from:]`` plus the world rows (x, y, nx, ny, n.q) of ``points`` seen from
-    ``pose`` that have a normal; and the grid hash over them (sorted rows, their indices,
-    bucket starts, grid description)."""
+def _add_scan(points, pose, max_gap, gap_ratio, cell, rows, grid_xy, order, start, grid,
+              state):
+    """In place on a local map's buffers (:meth:`LocalMap.buffers`; ``state``: rows, scans,
+    most scans, each scan's rows oldest first): the world rows (x, y, nx, ny, n.q) of
+    ``points`` seen from ``pose`` that have a normal join the map (the oldest scan leaves when
+    there are ``state[2]`` scans), and the grid hash is rebuilt; none with a normal: the map
+    stays as it is. Returns the rows added. The buffers hold the map's rows and these."""
     normals, ok = _normals(points, max_gap, gap_ratio)
+    added = 0
+    for i in range(points.shape[0]):
+        added += ok[i]
+    if added == 0:
+        return 0
+    n_rows, n_scans = state[_ROWS], state[_SCANS]
+    keep_from = 0
+    if n_scans == state[_MOST]:               # the oldest scan leaves
+        keep_from = state[_SIZES]
+        for k in range(n_scans - 1):
+            state[_SIZES + k] = state[_SIZES + k + 1]
+        n_scans -= 1
+    n_old = n_rows - keep_from
+    if n_old + added > rows.shape[0]:
+        raise ValueError('local map buffers too small (LocalMap.reserve)')
+    for i in range(n_old):
+        for c in range(5):
+            rows[i, c] = rows[keep_from + i, c]
     c, s = math.cos(pose[2]), math.sin(pose[2])
-    n_old = rows.shape[0] - keep_from
-    n = n_old + int(ok.sum())
-    out = np.empty((n, 5))
-    out[:n_old] = rows[keep_from:]
     k = n_old
     for i in range(points.shape[0]):
         if ok[i]:
@@ -129,21 +150,35 @@ def _add_scan(points, pose, max_gap, gap_ratio, rows, keep_from, cell):
             qy = fma(py, c, px * s) + pose[1]
             wx = fma(ny, -s, nx * c)
             wy = fma(ny, c, nx * s)
-            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = qx, qy, wx, wy
-            out[k, 4] = wx * qx + wy * qy
+            rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3] = qx, qy, wx, wy
+            rows[k, 4] = wx * qx + wy * qy
             k += 1
-    sorted_rows, order, start, grid = _grid_hash(out, cell)
-    return out, sorted_rows, order, start, grid
+    state[_SIZES + n_scans] = added
+    state[_SCANS] = n_scans + 1
+    state[_ROWS] = k
+    _grid_hash(rows, k, cell, grid_xy, order, start, grid)
+    return added
+
+
+@jit.inline
+def _hash_size(n):
+    """Buckets of the grid hash of ``n`` rows: a power of two, at least 16 and 2 n."""
+    size = 16
+    while size < 2 * n:
+        size *= 2
+    return size
 
 
 @jit.kernel
-def _grid_hash(rows, cell):
-    """The rows sorted by hash bucket of their grid cell, their indices in ``rows``, the
-    buckets' starts, and the grid (origin, 1 / cell, cell, cells along x and y, hash mask)."""
-    n = rows.shape[0]
-    grid = np.zeros(7)
+def _grid_hash(rows, n, cell, grid_xy, order, start, grid):
+    """The grid hash of ``rows[:n]``, into the buffers: the points (x, y) sorted by hash
+    bucket of their grid cell (``grid_xy[:n]``: what the neighbour search reads, compact),
+    their indices in ``rows`` (``order[:n]``), the buckets' starts (``start[:size + 1]``),
+    and the grid (origin, 1 / cell, cell, cells along x and y, hash mask)."""
+    grid[:] = 0.0
     if n == 0:
-        return rows.copy(), np.zeros(0, np.int64), np.zeros(2, np.int64), grid
+        start[0] = start[1] = 0
+        return
     ox, oy = rows[0, 0], rows[0, 1]
     hx, hy = ox, oy
     for i in range(n):
@@ -152,31 +187,25 @@ def _grid_hash(rows, cell):
         hx = max(hx, rows[i, 0])
         hy = max(hy, rows[i, 1])
     inv = 1.0 / cell
-    size = 16
-    while size < 2 * n:
-        size *= 2
+    size = _hash_size(n)
     grid[_OX], grid[_OY], grid[_INV], grid[_SIZE] = ox, oy, inv, cell
     grid[_NCX] = int((hx - ox) * inv) + 1
     grid[_NCY] = int((hy - oy) * inv) + 1
     grid[_MASK] = size - 1
     bucket = np.empty(n, np.int64)
-    start = np.zeros(size + 1, np.int64)
+    start[:size + 1] = 0
     for i in range(n):
         b = _bucket(int((rows[i, 0] - ox) * inv), int((rows[i, 1] - oy) * inv), size - 1)
         bucket[i] = b
         start[b + 1] += 1
     for b in range(size):
         start[b + 1] += start[b]
-    fill = start[:-1].copy()
-    sorted_rows = np.empty((n, 5))
-    order = np.empty(n, np.int64)
+    fill = start[:size].copy()
     for i in range(n):
         k = fill[bucket[i]]
         fill[bucket[i]] += 1
         order[k] = i
-        for c in range(5):
-            sorted_rows[k, c] = rows[i, c]
-    return sorted_rows, order, start, grid
+        grid_xy[k, 0], grid_xy[k, 1] = rows[i, 0], rows[i, 1]
 
 
 @jit.kernel
@@ -186,8 +215,8 @@ def _bucket(ix, iy, mask):
 
 @jit.kernel
 def _nearest(qx, qy, d, rows, start, grid):
-    """``(j, tied)``: the row in ``rows`` (grid order) of the point nearest to (qx, qy)
-    strictly within ``d`` (-1: none), and whether another is exactly as near."""
+    """``(j, tied)``: the row in ``rows`` (points x, y in grid order) of the point nearest
+    to (qx, qy) strictly within ``d`` (-1: none), and whether another is exactly as near."""
     ox, oy, inv, cell = grid[_OX], grid[_OY], grid[_INV], grid[_SIZE]
     ncx, ncy, mask = int(grid[_NCX]), int(grid[_NCY]), int(grid[_MASK])
     fx = (qx - ox) * inv
@@ -489,11 +518,11 @@ def _untie(a, matched, tied, n_tied, c, s, x, y, d, rows, tree):
 
 
 @jit.kernel
-def _nearest_all(queries, d, rows, grid_rows, order, start, grid):
+def _nearest_all(queries, d, rows, grid_xy, order, start, grid):
     out = np.full(queries.shape[0], -1, np.int64)
     tree = _no_tree()
     for i in range(queries.shape[0]):
-        j, tied = _nearest(queries[i, 0], queries[i, 1], d, grid_rows, start, grid)
+        j, tied = _nearest(queries[i, 0], queries[i, 1], d, grid_xy, start, grid)
         if j >= 0:
             out[i] = order[j]
             if tied:
@@ -573,7 +602,7 @@ def _matmul(a, b, rows):
 
 
 @jit.kernel
-def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, start, grid):
+def _align(source, pose0, schedule, levels, settings, rows, grid_xy, order, start, grid):
     """The Gauss-Newton iterations of :func:`align` over the first ``levels`` association
     distances of ``schedule``; returns (pose, H, scalars, eigenvalues, eigenvectors, last
     step) with scalars = sum_w, iterations, converged, n_in, rms, scale.
@@ -607,7 +636,7 @@ def _align(source, pose0, schedule, levels, settings, rows, grid_rows, order, st
         for i in range(0, m, step):
             px, py = source[i, 0], source[i, 1]
             qx, qy = fma(py, -s, px * c) + x, fma(py, c, px * s) + y
-            j, tie = _nearest(qx, qy, d, grid_rows, start, grid)
+            j, tie = _nearest(qx, qy, d, grid_xy, start, grid)
             if j < 0:
                 continue
             if tie:                       # the KD-tree breaks the tie (below)
@@ -691,7 +720,7 @@ _SUM_W, _ITERATIONS, _CONVERGED, _N_IN, _RMS, _SCALE = range(SCALARS, SCALARS + 
 @jit.kernel
 def _points_and_align(ranges, skip, cos, sin, valid_min, valid_max, min_range, max_range,
                       max_points, min_points, pose0, levels, schedule, settings, rows,
-                      grid_rows, order, start, grid, out):
+                      grid_xy, order, start, grid, out):
     """The scan's points (:func:`_scan_points`) and, with ``levels`` > 0 and at least
     ``min_points`` of them and in the map, their :func:`_align` result packed into
     ``out[:RESULT_SIZE]``; returns the points and whether they were matched."""
@@ -700,7 +729,7 @@ def _points_and_align(ranges, skip, cos, sin, valid_min, valid_max, min_range, m
     if pts.shape[0] < min_points or rows.shape[0] < min_points:
         levels = 0
     pose, h, scalars, evals, evecs, last = _align(pts, pose0, schedule, levels, settings,
-                                                  rows, grid_rows, order, start, grid)
+                                                  rows, grid_xy, order, start, grid)
     out[POSE:POSE + 3] = pose
     out[HESSIAN:HESSIAN + 9] = h.ravel()
     out[SCALARS:SCALARS + 6] = scalars
@@ -728,50 +757,71 @@ def scan_normals(points: np.ndarray, max_gap: float = 0.3,
 
 class LocalMap:
     """Points and normals of the last ``max_scans`` key scans in the world frame, with the
-    grid hash of :func:`align`'s neighbour search (rebuilt when a scan joins)."""
+    grid hash of :func:`align`'s neighbour search (rebuilt when a scan joins), in buffers
+    that kernels update in place (:attr:`buffers`; :meth:`reserve` makes room first)."""
 
-    def __init__(self, max_scans: int, max_gap: float = 0.3, gap_ratio: float = 0.05):
+    def __init__(self, max_scans: int, max_gap: float = 0.3, gap_ratio: float = 0.05,
+                 capacity: int = 1024):
         self.max_scans = int(max_scans)
         self.max_gap, self.gap_ratio = float(max_gap), float(gap_ratio)
-        self._sizes: deque = deque()
-        self.clear()
+        self.state = np.zeros(_SIZES + self.max_scans, np.int64)
+        self.state[_MOST] = self.max_scans
+        self.buffers = ()
+        self._allocate(max(int(capacity), 16))
+
+    def _allocate(self, capacity: int) -> None:
+        """Buffers for ``capacity`` rows, holding what the map has."""
+        n = self.n_points
+        old = self.arrays if n else None
+        rows, grid_xy = np.zeros((capacity, 5)), np.zeros((capacity, 2))
+        order = np.zeros(capacity, np.int64)
+        start = np.zeros(_hash_size(capacity) + 1, np.int64)
+        grid = np.zeros(7)
+        if old is not None:
+            rows[:n], grid_xy[:n], order[:n] = old[0], old[1], old[2]
+            start[:old[3].size], grid[:] = old[3], old[4]
+        #: what the kernels read and write: the rows (oldest scan first), the points (x, y)
+        #: in grid order and their indices in the rows, bucket starts, the grid, :attr:`state`
+        self.buffers = (rows, grid_xy, order, start, grid, self.state)
+
+    def reserve(self, extra: int) -> None:
+        """Room for ``extra`` more rows."""
+        need = self.n_points + int(extra)
+        if need > self.buffers[0].shape[0]:
+            self._allocate(max(need, 2 * self.buffers[0].shape[0]))
+
+    @property
+    def arrays(self) -> tuple:
+        """The map as :func:`align` reads it: the rows, the points (x, y) in grid order and
+        their indices in the rows, bucket starts, the grid (views of the buffers)."""
+        rows, grid_xy, order, start, grid, _ = self.buffers
+        n = self.n_points
+        return rows[:n], grid_xy[:n], order[:n], start[:int(grid[_MASK]) + 2], grid
 
     @property
     def rows(self) -> np.ndarray:
         """(N, 5): x, y, nx, ny, n . (x, y) per map point, oldest scan first."""
-        return self.arrays[0]
+        return self.buffers[0][:self.n_points]
 
     @property
     def n_scans(self) -> int:
-        return len(self._sizes)
+        return int(self.state[_SCANS])
 
     @property
     def n_points(self) -> int:
-        return self.rows.shape[0]
+        return int(self.state[_ROWS])
 
     def clear(self) -> None:
-        self._sizes.clear()
-        empty = np.zeros((0, 5))
-        #: what the kernels read: the rows, the rows in grid order and their indices in
-        #: the rows, bucket starts, the grid
-        self.arrays = (empty, empty, np.zeros(0, np.int64), np.zeros(2, np.int64),
-                       np.zeros(7))
+        self.state[_ROWS] = self.state[_SCANS] = 0
+        _grid_hash(self.buffers[0], 0, CELL, *self.buffers[1:5])
 
     def add_scan(self, pose, points: np.ndarray) -> None:
         """One scan's points (scanner frame, beam order) seen from ``pose`` (world): those
         with a normal join; the oldest scan leaves when there are ``max_scans``."""
-        full = len(self._sizes) == self.max_scans
-        keep_from = self._sizes[0] if full else 0
-        arrays = _add_scan(np.ascontiguousarray(points, dtype=float),
-                           np.asarray(pose, dtype=float), self.max_gap, self.gap_ratio,
-                           self.rows, keep_from, CELL)
-        added = arrays[0].shape[0] - (self.n_points - keep_from)
-        if not added:             # no point with a normal: the map stays as it is
-            return
-        if full:
-            self._sizes.popleft()
-        self._sizes.append(added)
-        self.arrays = arrays
+        points = np.ascontiguousarray(points, dtype=float)
+        self.reserve(points.shape[0])
+        _add_scan(points, np.asarray(pose, dtype=float), self.max_gap, self.gap_ratio, CELL,
+                  *self.buffers)
 
 
 @dataclass
@@ -899,6 +949,8 @@ def warm_up() -> None:
         schedule = Schedule.of()
         pts, _ = match_scan(ranges, cos, sin, 0.0, 10.0, 0.0, 10.0, 100, 3, local, None,
                             schedule)
+        local.add_scan(np.zeros(3), pts)
+        local.clear()
         local.add_scan(np.zeros(3), pts)
         match_scan(ranges, cos, sin, 0.0, 10.0, 0.0, 10.0, 100, 3, local, np.zeros(3),
                    schedule)

@@ -16,6 +16,16 @@ Where the cache is (decided once, when the first kernel is declared):
 * else no cache: every process compiles its kernels again (a few seconds at start); said
   once in the log (WARNING).
 
+A damaged cache file (an index or a kernel that cannot be read back: a disk error, a copy
+cut short) is a cache miss: that kernel is compiled again and its file rewritten; said
+once in the log (WARNING).
+
+A kernel is compiled with the kernels it calls, which may live in other modules; numba
+would take a cached kernel as fresh while its own module is unchanged, so a kernel of this
+package is cached under the contents of its module and of every module of the package that
+module imports, directly or not (:func:`sources_stamp`): a changed module compiles the
+kernels that may call into it again, never runs an old one.
+
 :func:`compiled` runs a stage's first kernel call (at the stage's construction, with a tiny
 input) so that compiling happens at start, not in the middle of the first scans, and so
 that a machine where numba cannot compile (an unusual CPU that LLVM does not know) fails at
@@ -24,8 +34,10 @@ from the nodes and the command-line tools).
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
+import re
 import tempfile
 import threading
 from collections.abc import Callable
@@ -110,7 +122,124 @@ def _configure():
         if cache_dir is not None:
             numba.config.CACHE_DIR = cache_dir
         _state.update(cache=enabled, note=note)
+        _tolerate_damaged_cache()
+        _stamp_with_every_kernel_module()
     return numba
+
+
+def sources_stamp(module: Path) -> str:
+    """A hash of the contents of ``module`` (a file of this package's ``core``) and of every
+    module of ``core`` it imports, directly or not; once per process and module."""
+    stamps = _state.setdefault('sources', {})
+    module = Path(module).resolve()
+    if module not in stamps:
+        digest = hashlib.sha256()
+        for path in sorted(_imported_modules(module)):
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+        stamps[module] = digest.hexdigest()
+    return stamps[module]
+
+
+_IMPORT = re.compile(r'^\s*from\s+laser_tracker\.core((?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)'
+                     r'|^\s*import\s+laser_tracker\.core((?:\.\w+)+)', re.MULTILINE)
+
+
+def _imported_modules(module: Path) -> set[Path]:
+    """``module`` and the modules of its folder's package it imports (``from
+    laser_tracker.core... import ...``, anywhere in it), transitively."""
+    root = module.parent
+    while (root.parent / '__init__.py').exists() and root.name != 'core':
+        root = root.parent
+    found, todo = set(), [module]
+    while todo:
+        path = todo.pop()
+        if path in found or not path.is_file():
+            continue
+        found.add(path)
+        for match in _IMPORT.finditer(path.read_text(errors='replace')):
+            dotted = (match.group(1) or match.group(3) or '').strip('.')
+            base = root.joinpath(*dotted.split('.')) if dotted else root
+            todo += [base.with_suffix('.py'), base / '__init__.py']
+            for name in re.findall(r'\w+', (match.group(2) or '').split('#')[0]):
+                todo += [base / f'{name}.py', base / name / '__init__.py']
+    return found
+
+
+def _stamp_with_every_kernel_module() -> None:
+    """numba's cache locators, for functions of this package, stamped with
+    :func:`sources_stamp` besides their own module's stamp."""
+    try:
+        from numba.core import caching
+    except ImportError:                 # another numba: its own behaviour
+        return
+    impl = getattr(caching, 'CacheImpl', None) or getattr(caching, '_CacheImpl', None)
+    if impl is None or getattr(impl, '_stamped_with_every_kernel_module', False):
+        return
+    folder = str(PACKAGE_CACHE.parent) + os.sep
+
+    def stamped(locator):
+        class Stamped(locator):
+            def get_source_stamp(self):
+                stamp = super().get_source_stamp()
+                path = os.path.realpath(self._py_file)
+                if path.startswith(folder):
+                    return stamp, sources_stamp(Path(path))
+                return stamp
+        Stamped.__name__ = Stamped.__qualname__ = f'Stamped{locator.__name__}'
+        return Stamped
+
+    ours = []
+    for name in ('UserProvidedCacheLocator', '_UserProvidedCacheLocator',
+                 'InTreeCacheLocator', '_InTreeCacheLocator'):
+        locator = getattr(caching, name, None)
+        if locator is not None and locator in impl._locator_classes:
+            ours.append(stamped(locator))
+    impl._locator_classes = ours + list(impl._locator_classes)
+    impl._stamped_with_every_kernel_module = True
+
+
+def _tolerate_damaged_cache() -> None:
+    """numba's cache files, read so that a damaged one is a miss (the kernel is compiled and
+    the file rewritten) instead of an error that stops every start."""
+    try:
+        from numba.core.caching import IndexDataCacheFile
+    except ImportError:                 # another numba: its own behaviour
+        return
+    load_index = getattr(IndexDataCacheFile, '_load_index', None)
+    load_data = getattr(IndexDataCacheFile, '_load_data', None)
+    if load_index is None or load_data is None or \
+            getattr(IndexDataCacheFile, '_damage_tolerated', False):
+        return
+
+    def _load_index(self):
+        try:
+            return load_index(self)
+        except Exception as exc:  # noqa: BLE001 - whatever unpickling a damaged file raises
+            _damaged(self._index_path, exc)
+            return {}
+
+    def _load_data(self, name):
+        try:
+            return load_data(self, name)
+        except OSError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - as above
+            _damaged(self._data_path(name), exc)
+            raise OSError(str(exc)) from exc       # numba's load: a miss
+
+    IndexDataCacheFile._load_index = _load_index
+    IndexDataCacheFile._load_data = _load_data
+    IndexDataCacheFile._damage_tolerated = True
+
+
+def _damaged(path: str, exc: Exception) -> None:
+    """Say once that a damaged cache file is ignored."""
+    if not _state.get('damaged'):
+        _state['damaged'] = True
+        log.warning('a damaged file of the compiled kernels\' cache is ignored (%s: %s: %s); '
+                    'its kernels are compiled again', path, type(exc).__name__,
+                    ' '.join(str(exc).split())[:100])
 
 
 def kernel(function: Callable) -> Callable:
@@ -129,12 +258,27 @@ def kernel(function: Callable) -> Callable:
 def inline(function: Callable) -> Callable:
     """A small helper of kernels, compiled into each kernel that calls it (numba's
     ``inline='always'``): a call that passes arrays to a separately compiled function costs
-    a reference count update per array, which in a per-point loop is most of the time."""
+    a reference count update per array, which in a per-point loop is most of the time.
+
+    Inlined, an array argument still has its reference counted once per call unless numba
+    can pair the count with its release: when the helper uses the array last in one branch
+    and not in another (an early return, a read only some cells need), it cannot, and a
+    helper called per point then costs tens of nanoseconds per array (atomic counts): give
+    such a helper one exit and end it with :func:`alive` of its arrays."""
     numba = _configure()
     if numba is None:
         return kernel(function)
     return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy',
                       inline='always')(function)
+
+
+def _alive(arrays) -> None:
+    """Nothing: the last use of the arrays ``arrays`` (a tuple), at the one exit of an
+    :func:`inline` helper that reads some of them only in some branches, so that numba
+    pairs their reference counts within the call and drops them (see :func:`inline`)."""
+
+
+alive = inline(_alive)
 
 
 #: Set when a Ctrl-C arrived while numba's compiler was calling back into Python (see
@@ -198,6 +342,23 @@ def unique(values):
             out[n] = out[i]
             n += 1
     return out[:n]
+
+
+@inline
+def compare_length(dx, dy, limit):
+    """-1 when the length of ``(dx, dy)`` is below ``limit``, 1 when above, by its square
+    (far cheaper than ``math.hypot`` or a square root); 0 when the square lies within a
+    relative 1e-9 of the limit's (far above their rounding errors) or the numbers are too
+    large or small to square: then the caller decides by the length as it is to be computed
+    (``hypot``, ``sqrt``), whose result the squares give everywhere else."""
+    if 1e-100 < limit < 1e100 and abs(dx) < 1e100 and abs(dy) < 1e100:   # no overflow,
+        d2 = dx * dx + dy * dy                                  # nothing lost below
+        l2 = limit * limit
+        if d2 < l2 * (1.0 - 1e-9):
+            return -1
+        if d2 > l2 * (1.0 + 1e-9):
+            return 1
+    return 0
 
 
 # ------------------------------------------------------------------ numpy's summation orders

@@ -139,44 +139,76 @@ def inside_polygon(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return (np.count_nonzero(crosses & (x < at), axis=1) % 2) == 1
 
 
+#: Rows of a self-mask's per-beam state (:attr:`SelfMask.state`): the range each beam's
+#: return keeps, the world travel past it while it kept it, the learnt body range, the world
+#: travel seen only beyond it, the footprint's range, and the mask's range (the footprint's
+#: and the learnt body's, what :attr:`SelfMask.ranges` says).
+ANCHOR, KEPT, BODY, BEYOND, LIMITS, RANGES = range(6)
+#: Layout of a self-mask's settings (:attr:`SelfMask.settings`): tolerance, the provisional
+#: travel, the beam's width, the edge step, learning on, reach, travel, the travel that
+#: forgets a body, the surface step, and whether the mask's range is stale (set when the
+#: learnt body changed, cleared when it is recomputed).
+_TOLERANCE, _PROVISIONAL, _WIDTH, _JUMP, _LEARN, _REACH, _TRAVEL, _FORGET, _SURFACE, \
+    _STALE, _SETTINGS = range(11)
+
+
+def _state_row(row: int, doc: str) -> property:
+    """A row of :attr:`SelfMask.state` as an attribute (a view)."""
+    return property(lambda self: self.state[row], doc=doc)
+
+
 class SelfMask:
     """The body mask of one scan stream: ``apply(scan)`` masks, ``learn(scan, motion)`` learns.
 
     ``mount`` = (x, y, yaw) of the scanner on the platform (for the footprint). ``limits``
-    (beams,) is the current mask: the farthest range (m) of the body per beam, NaN where the
-    beam does not see the body.
+    (beams,) is the footprint's mask: the farthest range (m) of the body per beam, NaN where
+    the beam does not see it. The per-beam state is one array (:attr:`state`, rows
+    ``ANCHOR`` ... ``RANGES``) that the kernels update in place; the ego-motion estimator
+    masks and learns in its own kernel call (``EgoMotionEstimator(self_mask=...)``).
     """
 
     def __init__(self, config: SelfMaskConfig | None = None, mount=(0.0, 0.0, 0.0)):
-        self.config = config or SelfMaskConfig()
+        self.config = c = config or SelfMaskConfig()
         self.mount = tuple(float(v) for v in mount)
-        corners = footprint_polygon(self.config.footprint)
+        corners = footprint_polygon(c.footprint)
         if corners is not None:             # the footprint in the scanner frame
             x, y, yaw = self.mount
-            c, s = math.cos(yaw), math.sin(yaw)
+            cy, sy = math.cos(yaw), math.sin(yaw)
             d = corners - (x, y)
-            corners = np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
+            corners = np.column_stack((cy * d[:, 0] + sy * d[:, 1],
+                                       -sy * d[:, 0] + cy * d[:, 1]))
         self._footprint = corners
-        self._geometry = None
-        self._ranges = None
-        self.limits = np.zeros(0)
+        self.settings = np.zeros(_SETTINGS)
+        self.settings[[_TOLERANCE, _PROVISIONAL, _WIDTH, _JUMP, _LEARN, _REACH, _TRAVEL,
+                       _FORGET, _SURFACE]] = (
+            c.tolerance, PROVISIONAL_TRAVEL, c.beam_width, EDGE_JUMP, c.learn, c.reach,
+            c.travel, FORGET_FACTOR * c.travel, SURFACE_JUMP)
+        self.reset()
+        #: what :meth:`apply` and :meth:`left_out` (or the estimator) masked in the last scan:
+        #: per beam, returns up to this range (NaN: none); ``applied`` is the same, None when
+        #: it masked nothing
         self.masked_ranges = np.zeros(0)
+        self.applied: np.ndarray | None = None
         jit.compiled('self-mask kernel', _exercise_learn)
 
     # ------------------------------------------------------------------ state
-    def _fit(self, scan: Scan) -> None:
+    def fit(self, scan: Scan) -> None:
         """Per-beam state for the scan's geometry (a new geometry starts afresh)."""
-        key = (scan.angle_min, scan.angle_increment, scan.n_beams)
+        key = (scan.angle_min, scan.angle_increment, scan.ranges.size)
         if key == self._geometry:
             return
         self._geometry = key
         n = scan.n_beams
-        self.anchor = np.full(n, np.nan)     # the range the beam's return keeps
-        self.kept = np.zeros(n)              # world travel past it while it kept that range
-        self.body = np.full(n, np.nan)       # learnt body range per beam
-        self.beyond = np.zeros(n)            # world travel seen only beyond the body
-        self.limits = self._footprint_limits(scan)
-        self._ranges = None
+        self.state = np.zeros((RANGES + 1, n))
+        self.state[[ANCHOR, BODY]] = np.nan
+        self.state[LIMITS] = self._footprint_limits(scan)
+        self.settings[_STALE] = 1.0
+
+    anchor = _state_row(ANCHOR, 'The range each beam\'s return keeps.')
+    kept = _state_row(KEPT, 'World travel past each return while it kept its range.')
+    body = _state_row(BODY, 'The learnt body range per beam (NaN: none).')
+    beyond = _state_row(BEYOND, 'World travel seen only beyond the learnt body.')
+    limits = _state_row(LIMITS, 'The footprint\'s range per beam (NaN: none).')
 
     def _footprint_limits(self, scan: Scan) -> np.ndarray:
         """Per beam, the range at which it leaves the footprint (NaN: it does not cross it)."""
@@ -196,14 +228,15 @@ class SelfMask:
 
     def reset(self) -> None:
         self._geometry = None
-        self.limits = np.zeros(0)
+        self.state = np.zeros((RANGES + 1, 0))
 
     # ------------------------------------------------------------------ per scan
     def mask(self, scan: Scan) -> np.ndarray:
         """Beams of ``scan`` whose return is the body."""
-        self._fit(scan)
+        self.fit(scan)
+        ranges = self.ranges
         with np.errstate(invalid='ignore'):
-            return scan.ranges <= self.ranges          # NaN: False
+            return scan.ranges <= ranges          # NaN: False
 
     def apply(self, scan: Scan) -> tuple[Scan, np.ndarray]:
         """``scan`` with its body returns and its mixed returns at nearer edges as NaN (a
@@ -232,40 +265,33 @@ class SelfMask:
         its range while the world moved past it by ``PROVISIONAL_TRAVEL`` (a tenth of what
         learning takes). Not for the scan match: the body matches itself, and would pull
         the match towards standing still before it is learnt."""
-        self._fit(scan)
+        self.fit(scan)
         with np.errstate(invalid='ignore'):
             kept = np.abs(scan.ranges - self.anchor) <= self.config.tolerance
         return kept & (self.kept >= PROVISIONAL_TRAVEL) & np.isnan(self.body)
 
     def left_out(self, scan: Scan) -> np.ndarray:
         """Beams of ``scan`` the scan match leaves out: :meth:`mask`, :meth:`unlearnt` or
-        a mixed return (one kernel call, :func:`_left_out`); ``masked_ranges`` is then the
+        a mixed return (one kernel call, :func:`mask_scan`); ``masked_ranges`` is then the
         mask as detection applies it (the body and the mixed returns)."""
-        self._fit(scan)
-        self.masked_ranges = self._body_ranges().copy()
-        return _left_out(scan.ranges, self._body_ranges(), self.anchor, self.kept, self.body,
-                         float(self.config.tolerance), PROVISIONAL_TRAVEL,
-                         max(scan.range_min, 1e-6), float(scan.range_max),
-                         abs(float(scan.angle_increment)), float(self.config.beam_width),
-                         EDGE_JUMP, self.masked_ranges)
+        self.fit(scan)
+        self.masked_ranges = np.empty(scan.n_beams)
+        out = np.empty(scan.n_beams, np.bool_)
+        any_masked = mask_scan(scan.ranges, max(scan.range_min, 1e-6), float(scan.range_max),
+                                abs(float(scan.angle_increment)), self.settings, self.state,
+                                self.masked_ranges, out)
+        self.applied = self.masked_ranges if any_masked else None
+        return out
 
     def learn(self, scan: Scan, motion) -> None:
         """Learn from ``scan`` (as received) and the scanner's motion since the previous
-        scan (its pose in the previous scanner frame): one kernel call, :func:`_learn`."""
-        c = self.config
-        if not c.learn:
-            return
-        self._fit(scan)
+        scan (its pose in the previous scanner frame): one kernel call, :func:`learn_scan`."""
+        self.fit(scan)
         x, y, th = (float(v) for v in motion)
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
-            return
         _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
                                  scan.n_beams)
-        if _learn(scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
-                  x, y, th, float(c.reach), float(c.tolerance), float(c.travel),
-                  FORGET_FACTOR * c.travel, SURFACE_JUMP, self.kept, self.anchor, self.body,
-                  self.beyond):
-            self._ranges = None
+        learn_scan(scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
+                    x, y, th, self.settings, self.state)
 
     @property
     def ranges(self) -> np.ndarray:
@@ -274,28 +300,76 @@ class SelfMask:
         scan)."""
         if self._geometry is None:
             return np.zeros(0)
-        return self._body_ranges().copy()
+        _refresh(self.settings, self.state)
+        return self.state[RANGES].copy()
 
-    def _body_ranges(self) -> np.ndarray:
-        """:attr:`ranges` itself, recomputed only when the learnt body changed."""
-        if self._ranges is None:
-            body = self.body
-            if np.isfinite(body).any():
-                padded = np.pad(body, EDGE_BEAMS, constant_values=np.nan)
-                n = body.size
-                body = np.fmax.reduce([padded[k:k + n] for k in range(2 * EDGE_BEAMS + 1)])
-            self._ranges = np.fmax(self.limits, body + self.config.tolerance)
-        return self._ranges
+
+@jit.kernel
+def _refresh(settings, state):
+    """The mask's range (``state[RANGES]``) recomputed when stale: per beam the footprint's
+    range and the learnt body's within ``EDGE_BEAMS`` beams plus the tolerance, the larger
+    (NaN: none; as numpy's ``fmax``)."""
+    if not settings[_STALE]:
+        return
+    settings[_STALE] = 0.0
+    body, limits, out = state[BODY], state[LIMITS], state[RANGES]
+    n = body.size
+    tolerance = settings[_TOLERANCE]
+    for k in range(n):
+        far = np.nan
+        for j in range(max(k - EDGE_BEAMS, 0), min(k + EDGE_BEAMS + 1, n)):
+            if math.isnan(far) or body[j] > far:
+                far = body[j]
+        out[k] = _fmax(limits[k], far + tolerance)
+
+
+@jit.inline
+def _fmax(a, b):
+    """numpy's ``fmax``: the larger, a NaN ignored."""
+    if math.isnan(a):
+        return b
+    if math.isnan(b):
+        return a
+    return a if a >= b else b
+
+
+@jit.kernel
+def mask_scan(r, range_min, range_max, increment, settings, state, masked_ranges, out):
+    """:meth:`SelfMask.left_out` into ``out`` (bool per beam) and ``masked_ranges``; True
+    when any beam is masked."""
+    _refresh(settings, state)
+    ranges = state[RANGES]
+    for k in range(r.size):
+        masked_ranges[k] = ranges[k]
+    _left_out(r, ranges, state[ANCHOR], state[KEPT], state[BODY], settings[_TOLERANCE],
+              settings[_PROVISIONAL], range_min, range_max, increment, settings[_WIDTH],
+              settings[_JUMP], masked_ranges, out)
+    for k in range(r.size):
+        if math.isfinite(masked_ranges[k]):
+            return True
+    return False
+
+
+@jit.kernel
+def learn_scan(r, cos, sin, range_min, range_max, x, y, th, settings, state):
+    """:meth:`SelfMask.learn`: nothing when learning is off or the motion is not finite;
+    marks the mask's range stale when the learnt body changed."""
+    if not settings[_LEARN] or not (math.isfinite(x) and math.isfinite(y)
+                                    and math.isfinite(th)):
+        return
+    if _learn(r, cos, sin, range_min, range_max, x, y, th, settings[_REACH],
+              settings[_TOLERANCE], settings[_TRAVEL], settings[_FORGET], settings[_SURFACE],
+              state[KEPT], state[ANCHOR], state[BODY], state[BEYOND]):
+        settings[_STALE] = 1.0
 
 
 @jit.kernel
 def _left_out(r, body_ranges, anchor, kept, body, tolerance, provisional, range_min,
-              range_max, increment, width, jump, masked_ranges):
+              range_max, increment, width, jump, masked_ranges, out):
     """Per beam: ``r <= body_ranges`` (the body; NaN: no), or it kept its ``anchor``
     within ``tolerance`` over ``provisional`` metres of world travel and is not learnt
     (``body`` NaN): :meth:`SelfMask.mask` or :meth:`SelfMask.unlearnt`; or a mixed return
-    (:func:`_mark_mixed`), whose range then joins ``masked_ranges``."""
-    out = np.zeros(r.size, np.bool_)
+    (:func:`_mark_mixed`), whose range then joins ``masked_ranges``; into ``out``."""
     for k in range(r.size):
         out[k] = r[k] <= body_ranges[k] or (abs(r[k] - anchor[k]) <= tolerance
                                              and kept[k] >= provisional
@@ -308,7 +382,20 @@ def _left_out(r, body_ranges, anchor, kept, body, tolerance, provisional, range_
                 out[k] = True
                 if not r[k] <= masked_ranges[k]:
                     masked_ranges[k] = r[k]
-    return out
+
+
+@jit.kernel
+def without_body(ranges, body, out):
+    """``ranges`` into ``out`` with the returns up to ``body`` (per beam; NaN: none) as NaN
+    (detection's view of a scan, ``StampedPose.body``); True when any beam is masked."""
+    masked = False
+    for k in range(ranges.size):
+        if ranges[k] <= body[k]:
+            out[k] = np.nan
+            masked = True
+        else:
+            out[k] = ranges[k]
+    return masked
 
 
 def mixed_returns(scan: Scan, beam_width: float) -> np.ndarray:
@@ -355,17 +442,10 @@ def _mark_mixed(r, range_min, range_max, increment, width, jump, out):
 
 @jit.inline
 def _within(dx, dy, limit):
-    """``math.hypot(dx, dy) <= limit``: the squared length decides unless it is within a
-    relative 1e-9 of the limit's square (far above its rounding error and hypot's), where
-    hypot does; hypot costs more than the rest of a beam."""
-    if 1e-100 < limit < 1e100 and abs(dx) < 1e100 and abs(dy) < 1e100:   # no overflow,
-        d2 = dx * dx + dy * dy                                  # nothing lost below
-        l2 = limit * limit
-        if d2 < l2 * (1.0 - 1e-9):
-            return True
-        if d2 > l2 * (1.0 + 1e-9):
-            return False
-    return math.hypot(dx, dy) <= limit
+    """``math.hypot(dx, dy) <= limit`` (hypot only where the squares leave it open: it
+    costs more than the rest of a beam)."""
+    side = jit.compare_length(dx, dy, limit)
+    return side < 0 or (side == 0 and math.hypot(dx, dy) <= limit)
 
 
 @jit.kernel
@@ -449,14 +529,17 @@ def _moved(px, py, x, y, cth, sth):
 
 
 def _exercise_learn() -> None:
-    """The kernel compiled (or loaded) for the argument types of real scans."""
+    """The kernels compiled (or loaded) for the argument types of real scans."""
     _, cos, sin = beam_table(-1.5, 0.075, 41)
     ranges = np.full(41, 0.5)
     ranges[0] = np.nan
-    state = [np.zeros(41), np.full(41, np.nan), np.full(41, np.nan), np.zeros(41)]
-    _learn(ranges, cos, sin, 0.01, 10.0, 0.1, 0.0, 0.01, 1.0, 0.05, 2.0, 20.0, SURFACE_JUMP,
-           *state)
-    _left_out(ranges, np.full(41, 0.3), state[1], state[0], state[2], 0.05, PROVISIONAL_TRAVEL,
-              0.01, 10.0, 0.075, 0.03, EDGE_JUMP, np.full(41, np.nan))
+    settings = np.array([0.05, PROVISIONAL_TRAVEL, 0.03, EDGE_JUMP, 1.0, 1.0, 2.0, 20.0,
+                         SURFACE_JUMP, 1.0])
+    state = np.zeros((RANGES + 1, 41))
+    state[[ANCHOR, BODY, LIMITS]] = np.nan
+    learn_scan(ranges, cos, sin, 0.01, 10.0, 0.1, 0.0, 0.01, settings, state)
+    mask_scan(ranges, 0.01, 10.0, 0.075, settings, state, np.empty(41),
+               np.empty(41, np.bool_))
     ranges[20:] = 5.0
     _mixed(ranges, 0.01, 10.0, 0.075, 0.03, EDGE_JUMP, np.zeros(41, np.bool_))
+    without_body(ranges, state[RANGES], np.empty(41))

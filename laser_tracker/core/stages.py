@@ -42,9 +42,7 @@ from laser_tracker.core.detections import Blobs, Detections, People, Segments
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map,
                                            people_in_odometry, pose_quality, pose_trusted)
-from laser_tracker.core.egomotion import (SOURCE_ICP, SOURCE_ODOMETRY, SOURCE_PARTIAL,
-                                          EgoMotionConfig, EgoMotionEstimate,
-                                          EgoMotionEstimator)
+from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, EgoMotionEstimator
 from laser_tracker.core.grid import (GridBuilder, GridConfig, GridHistory, relative_motion,
                                      transform_grid)
 from laser_tracker.core.head import HeadCommand, HeadConfig, HeadPointer
@@ -55,7 +53,7 @@ from laser_tracker.core.person_detector import (DetectorModelError, LegClassifie
                                                 PersonDetectorConfig)
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig, segments_of
-from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig
+from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig, without_body
 from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, EventLog, OdometryWait,
                                        StreamRules)
 
@@ -63,12 +61,6 @@ log = logging.getLogger(__name__)
 
 #: Scan points this close (m) to a motion blob do not join the static background.
 MOVER_RADIUS = 0.4
-#: Ego-motion sources whose motion is measured (matched or odometry), which the self-mask
-#: learns from (the odometry increment when there is one: the scan match itself may be
-#: pulled towards standing still by the body it has not learnt yet): a guessed motion (the
-#: constant-velocity model while a standing robot's matches are refused) would make anything
-#: that stands in front of it look like its body.
-MEASURED_MOTION = (SOURCE_ICP, SOURCE_PARTIAL, SOURCE_ODOMETRY)
 
 
 # ------------------------------------------------------------------------------ ego-motion
@@ -122,13 +114,13 @@ class EgoMotion:
         self.self_mask = self._new_self_mask(self_mask or SelfMaskConfig())
         self.frame_id = frame_id
         self.events = EventLog(log, 'ego-motion: ')
-        self.estimator = EgoMotionEstimator(self.config)
+        self.estimator = EgoMotionEstimator(self.config, self.self_mask)
         self.rules = StreamRules()
         self.wait: OdometryWait = OdometryWait(odom_wait)
         self.sources: dict[str, int] = {}
-        self._pose_cov = np.zeros((3, 3))
         self._restart_pending = False
         self.skipped: str | None = None     # why the last update returned None
+        _warm_up('ego-motion stage', _warm_up_ego_motion)
 
     # ---------------------------------------------------------------- stream
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list:
@@ -139,7 +131,7 @@ class EgoMotion:
             self.events.note('odometry skipped', f'not a finite planar pose: {stamp!r}, '
                              f'{list(xyt) if xyt else np.asarray(pose).tolist()!r}')
             return []
-        self.estimator.add_odometry(float(stamp), xyt)
+        self.estimator.add_finite_odometry(float(stamp), *xyt)
         if arrival is None:
             return []
         return self._estimate_all(self.wait.add_odometry(arrival, float(stamp)))
@@ -168,7 +160,6 @@ class EgoMotion:
             self.events.note('restart', reason)
         self.estimator.reset(reason or 'reset requested')
         self.rules.reset()
-        self._pose_cov = np.zeros((3, 3))
         self._restart_pending = True
 
     def _new_self_mask(self, config: SelfMaskConfig) -> SelfMask:
@@ -185,12 +176,12 @@ class EgoMotion:
         changed = config != self.config
         if self_mask is not None and (changed or self_mask != self.self_mask.config):
             self.config = config
-            self.self_mask = self._new_self_mask(self_mask)
+            self.self_mask = self.estimator.self_mask = self._new_self_mask(self_mask)
         if not changed:
             return
         odometry = self.estimator.odometry
         self.config = config
-        self.estimator = EgoMotionEstimator(config)
+        self.estimator = EgoMotionEstimator(config, self.self_mask)
         self.estimator.odometry = odometry
         odometry.config = config
         self.reset('parameters changed')
@@ -205,40 +196,27 @@ class EgoMotion:
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
-        left_out = self.self_mask.left_out(scan)   # the body, learnt or probable; mixed returns
-        body = self.self_mask.masked_ranges
-        est = self.estimator.update(scan, left_out)
-        self.sources[str(est.source)] = self.sources.get(str(est.source), 0) + 1
-        pose = np.asarray(est.pose, dtype=float)
-        x, y, theta = pose.tolist()
+        # the body is masked, the scan matched and the body learnt in one kernel call
+        est = self.estimator.update(scan)
+        source = str(est.source)
+        self.sources[source] = self.sources.get(source, 0) + 1
+        x, y, theta = est.pose.tolist()
         if not (est.ok and math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
             self.skipped = 'no pose: ' + _generic(est.reason)
             self.events.note('no pose', _generic(est.reason))
             return None
         self.rules.accept(scan.stamp)
-        if est.odometry_motion is not None:      # the wheels' word, independent of the scan
-            self.self_mask.learn(scan, est.odometry_motion)
-        elif est.source in MEASURED_MOTION:      # not a guess (constant velocity, first scan)
-            self.self_mask.learn(scan, est.motion)
         quality = pose_quality(est)
         if self._restart_pending:
             quality = PoseQuality(quality.variance, quality.unmatched, True)
             self._restart_pending = False
-        motion = np.asarray(est.motion, dtype=float)
-        cov = np.asarray(est.covariance, dtype=float)
-        if quality.restarted or not np.isfinite(cov).all():
-            self._pose_cov = np.zeros((3, 3)) if quality.restarted else self._pose_cov
-        else:
-            turn = theta - float(motion[2])          # the previous scanner's heading
-            c, s = math.cos(turn), math.sin(turn)
-            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            self._pose_cov = self._pose_cov + rot @ cov @ rot.T
-        return StampedPose(stamp=float(scan.stamp), pose=pose, motion=motion,
-                           motion_covariance=cov, pose_covariance=self._pose_cov.copy(),
-                           quality=quality, source=str(est.source), reason=str(est.reason),
-                           dt=float(est.dt), frame_id=self.frame_id,
-                           child_frame_id=scan.frame_id, stamp_ns=scan.stamp_ns,
-                           estimate=est, body=body if np.isfinite(body).any() else None)
+        return StampedPose(stamp=float(scan.stamp), pose=est.pose, motion=est.motion,
+                           motion_covariance=est.covariance,
+                           pose_covariance=est.pose_covariance, quality=quality,
+                           source=source, reason=str(est.reason), dt=float(est.dt),
+                           frame_id=self.frame_id, child_frame_id=scan.frame_id,
+                           stamp_ns=scan.stamp_ns, estimate=est,
+                           body=self.self_mask.applied)
 
 
 # ------------------------------------------------------------------------------- detection
@@ -287,6 +265,7 @@ class Detector:
         self._load_person_detector(persons or PersonDetectorConfig())
         self._build()
         jit.compiled('detection kernels', _exercise_detection)
+        _warm_up('detection stage', _warm_up_detection)
 
     def _load_person_detector(self, config: PersonDetectorConfig) -> None:
         self.person_config = config
@@ -495,6 +474,7 @@ class Tracker:
         self.rules = StreamRules(self.hypotheses.config.max_gap)
         self.last: FrameResult | None = None
         self.skipped: str | None = None
+        _warm_up('tracking stage', _warm_up_tracking)
 
     @property
     def config(self) -> HypothesisConfig:
@@ -611,6 +591,7 @@ def _exercise_detection() -> None:
                     range_min=0.05, range_max=8.0)
         pose.stamp = scan.stamp
         detector.update(scan, pose, want_grids=k == 2)
+    _without_body(scan, np.full(scan.n_beams, 2.0))
     frame = detector.history[0]
     segment(np.unique(frame.flat), detector.builder.cells, detector.grid_config.resolution,
             pose.pose, pose.stamp, detector.blob_config, frame.points)
@@ -623,20 +604,85 @@ def _exercise_detection() -> None:
                        scan.silent())
 
 
+# ------------------------------------------------------------------------------- warm-up
+#
+# A stage's first scans run at full speed only once Python has specialised its code (after
+# several calls of each function) and the processor's caches hold it: each stage runs a few
+# synthetic scans at its construction, once per process (its kernels are compiled or loaded
+# by then: ``jit.compiled``).
+
+_warmed: set[str] = set()
+
+
+def _warm_up(what: str, call) -> None:
+    """Run ``call`` once per process (and not again while it runs: it makes the stage)."""
+    if what not in _warmed:
+        _warmed.add(what)
+        call()
+
+
+def _warm_up_scene(k: int) -> tuple[Scan, tuple[float, float, float], np.ndarray]:
+    """Scan ``k`` (0.1 s apart) of a 6 x 5 m room seen by a scanner driving 5 cm per scan,
+    its pose, and a person's two legs walking across the room (odometry frame)."""
+    x = 0.05 * k
+    legs = np.array([[1.5 + 0.1 * k, -1.0 + 0.12 * k], [1.5 + 0.1 * k, -0.75 + 0.12 * k]])
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
+    d = np.column_stack((np.cos(angles), np.sin(angles)))
+    with np.errstate(divide='ignore', invalid='ignore'):
+        wall_x = np.where(d[:, 0] > 0, (3.0 - x) / d[:, 0], np.inf)
+        wall_y = np.where(d[:, 1] != 0, 2.5 / np.abs(d[:, 1]), np.inf)
+    ranges = np.minimum(wall_x, wall_y)
+    for cx, cy in legs - (x, 0.0):
+        b = d @ (cx, cy)
+        disc = b * b - (cx * cx + cy * cy - 0.06 ** 2)
+        hit = (disc > 0) & (b > 0)
+        ranges = np.where(hit, np.minimum(ranges, b - np.sqrt(np.maximum(disc, 0.0))), ranges)
+    ranges[::37] = np.inf
+    scan = Scan(stamp=0.1 * k, ranges=ranges, angle_min=-math.pi / 2,
+                angle_increment=math.pi / 360, range_min=0.05, range_max=8.0)
+    return scan, (x, 0.0, 0.0), legs
+
+
+def _warm_up_ego_motion() -> None:
+    stage = EgoMotion()
+    stage.estimator.rehearses = False          # synthetic scans: not a real first match
+    for k in range(10):
+        scan, pose, _ = _warm_up_scene(k)
+        stage.add_odometry(scan.stamp, pose)
+        stage.update(scan)
+
+
+def _warm_up_detection() -> None:
+    detector = Detector()
+    for k in range(10):
+        scan, pose, _ = _warm_up_scene(k)
+        detector.update(scan, StampedPose(
+            stamp=scan.stamp, pose=np.array(pose), motion=np.zeros(3),
+            motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
+            quality=PoseQuality(), body=np.full(scan.n_beams, 0.1)))
+
+
+def _warm_up_tracking() -> None:
+    tracker = Tracker()
+    for k in range(10):
+        _, pose, legs = _warm_up_scene(k)
+        person = legs.mean(axis=0, keepdims=True)
+        blobs = Blobs(xy=legs, cells=np.array([3, 3]), extent=np.full(2, 0.1),
+                      structure=np.full(2, np.nan))
+        people = People(xy=person, confidence=np.ones(1), free=np.ones(1, bool),
+                        spread=np.full(1, 0.25), static=np.zeros(1, bool))
+        tracker.update(Detections(0.1 * k, np.array(pose), blobs, people,
+                                  Segments(xy=legs, leg=np.ones(2))))
+
+
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:
-    """``scan`` with the returns of the robot's body (``StampedPose.body``) as NaN."""
+    """``scan`` with the returns of the robot's body (``StampedPose.body``) as NaN (no
+    measurement; the same scan if none is)."""
     if body is None or body.size != scan.n_beams:
         return scan
-    with np.errstate(invalid='ignore'):
-        return _without(scan, scan.ranges <= body)
-
-
-def _without(scan: Scan, masked: np.ndarray) -> Scan:
-    """``scan`` with the ``masked`` beams as NaN (no measurement; the same scan if none)."""
-    if not masked.any():
+    ranges = np.empty(scan.n_beams)
+    if not without_body(scan.ranges, np.ascontiguousarray(body, dtype=float), ranges):
         return scan
-    ranges = scan.ranges.copy()
-    ranges[masked] = np.nan
     # a copy of the (validated) scan with its ranges replaced: dataclasses.replace would
     # validate it again, which costs more than the rest of this function
     out = object.__new__(Scan)
