@@ -41,7 +41,7 @@ within ``--max-range`` (the detector's ``person_detector.max_range``, 8 m) count
 fold: recall of the labelled legs, precision among the held-out clusters, false legs per
 negative scan. The leg threshold written to the model (unless ``--threshold``) is the one
 at which the pooled held-out negative scans (at the recorded resolution) give
-``--false-legs`` (0.8) false legs per scan: a rate a user can read, and one that holds on
+``--false-legs`` (0.75) false legs per scan: a rate a user can read, and one that holds on
 clutter the model has not seen. The best F1 (``--false-legs 0``) depends on how many legs
 the recordings happen to hold against how much clutter, and moves with the training set.
 The final model is fitted on everything.
@@ -72,7 +72,7 @@ SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 POSES_TYPE = 'geometry_msgs/msg/PoseArray'
 RESAMPLED = (('0.5 deg', np.radians(0.5)), ('1 deg', np.radians(1.0)))
 #: False legs per scan with nobody in view at the recorded threshold (``--false-legs``).
-FALSE_LEGS = 0.8
+FALSE_LEGS = 0.75
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
