@@ -5,7 +5,8 @@ from leg_scenes import box, scene
 
 from laser_tracker.core.person_detector import PersonDetector, PersonDetectorConfig, load_model
 from laser_tracker.core.scan import Scan
-from laser_tracker.tools.train_detector import best_f1_threshold, resample, split_groups
+from laser_tracker.tools.train_detector import (FALSE_LEGS, best_f1_threshold,
+                                                false_leg_threshold, resample, split_groups)
 
 
 def test_resample_to_a_coarser_scanner():
@@ -35,6 +36,22 @@ def test_best_f1_threshold_separates_perfect_scores():
     y = np.array([1, 1, 1, 0, 0])
     t = best_f1_threshold(p, y)
     assert 0.3 < t < 0.7
+
+
+def test_false_leg_threshold_admits_the_asked_rate_of_negatives():
+    rng = np.random.default_rng(0)
+    p = np.r_[rng.uniform(0.5, 1.0, 50), rng.uniform(0.0, 1.0, 1000)]
+    y = np.r_[np.ones(50, int), np.zeros(1000, int)]
+    for rate in (0.1, 0.5, 1.0, 2.0):
+        t = false_leg_threshold(p, y, 100, rate)
+        assert ((p >= t) & (y == 0)).sum() == int(rate * 100)      # distinct probabilities
+    # negatives of one probability are all in or all out: never more than asked
+    tied = np.array([0.9, 0.8, 0.8, 0.8, 0.3, 0.2])
+    t = false_leg_threshold(tied, np.zeros(6, int), 2, 1.0)
+    assert 0.8 < t < 0.9 and ((tied >= t).sum() == 1)
+    assert false_leg_threshold(tied, np.zeros(6, int), 2, 0.0) > 0.9
+    assert false_leg_threshold(tied, np.zeros(6, int), 1, 10.0) < 0.2   # fewer than asked
+    assert false_leg_threshold(np.array([0.7]), np.array([1]), 5, 1.0) == 0.5   # none
 
 
 # ------------------------------------------------------------------ the command on bags
@@ -98,12 +115,21 @@ def test_train_detector_end_to_end(tmp_path, capsys):
     assert clf.meta['trained_on']['positive'] == ['positive']
     assert clf.meta['counts']['legs'] == 80
     held = clf.meta['held_out']['recorded']
-    assert held['recall'] > 0.8 and held['false_legs_per_negative_scan'] < 0.5
+    assert held['recall'] > 0.8 and held['false_legs_per_negative_scan'] <= FALSE_LEGS
+    assert clf.meta['threshold_rule'] == f'{FALSE_LEGS:g} false legs per negative scan'
     # the trained detector finds a person (two legs) in a new scene, and no box
     det = PersonDetector(PersonDetectorConfig(model=str(model)))
     found = det.detect(scene([(2.0, 0.5, 0.06), (2.05, 0.82, 0.06)], box(2.5, -1.5, 0.3),
                              noise=0.005, seed=999))
     assert found.count == 1 and abs(found.xy[0, 1] - 0.66) < 0.1
+    # the former rule, the best held-out F1, on request; a given threshold is recorded as is
+    for extra, rule in ((['--false-legs', '0'], 'best held-out F1'),
+                        (['--threshold', '0.7'], 'given')):
+        assert _run('train-detector', '--positive', pos, '--negative', neg, '--folds', '2',
+                    '--trees', '15', '--output', model, *extra) == 0
+        clf = load_model(model)
+        assert clf.meta['threshold_rule'] == rule
+    assert clf.recommended_threshold == 0.7
 
 
 def test_box_labels_instead_of_a_labels_topic(tmp_path, capsys):

@@ -36,10 +36,15 @@ Evaluation before the final fit: the groups (one per positive recording, one per
 topic; with fewer recordings of a kind than folds, blocks of consecutive scans of each) are
 split into ``--folds`` consecutive blocks; each block is predicted by a model
 trained on the others, on the scans as recorded and resampled to 0.5 and 1 degree between
-beams (SICK LMS resolutions), and as if every cluster stood 3 times farther. Printed per fold: recall of the labelled legs, precision
-among the held-out clusters, false legs per negative scan. The leg threshold written to the
-model (unless ``--threshold``) is the one that maximises F1 of the pooled held-out
-predictions at the recorded resolution. The final model is fitted on everything.
+beams (SICK LMS resolutions), and as if every cluster stood 3 times farther; only clusters
+within ``--max-range`` (the detector's ``person_detector.max_range``, 8 m) count. Printed per
+fold: recall of the labelled legs, precision among the held-out clusters, false legs per
+negative scan. The leg threshold written to the model (unless ``--threshold``) is the one
+at which the pooled held-out negative scans (at the recorded resolution) give
+``--false-legs`` (0.75) false legs per scan: a rate a user can read, and one that holds on
+clutter the model has not seen. The best F1 (``--false-legs 0``) depends on how many legs
+the recordings happen to hold against how much clutter, and moves with the training set.
+The final model is fitted on everything.
 """
 from __future__ import annotations
 
@@ -53,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from laser_tracker.core.person_detector import LegClassifier, save_model
+from laser_tracker.core.person_detector import LegClassifier, PersonDetectorConfig, save_model
 from laser_tracker.core.scan import Scan, ScanError
 from laser_tracker.core.segmentation import FEATURE_NAMES, FEATURE_SET, SegmentConfig, segment
 from laser_tracker.errors import InputFileError, LaserTrackerError
@@ -66,6 +71,8 @@ LABELS_TOPIC = '/leg_cluster_positions'
 SCAN_TYPE = 'sensor_msgs/msg/LaserScan'
 POSES_TYPE = 'geometry_msgs/msg/PoseArray'
 RESAMPLED = (('0.5 deg', np.radians(0.5)), ('1 deg', np.radians(1.0)))
+#: False legs per scan with nobody in view at the recorded threshold (``--false-legs``).
+FALSE_LEGS = 0.75
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -114,8 +121,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='held-out blocks of recordings for the evaluation (default 3; '
                         '0 or 1 = no evaluation); with fewer recordings of a kind, blocks of '
                         'consecutive scans')
+    parser.add_argument('--false-legs', type=float, default=FALSE_LEGS, metavar='RATE',
+                        help='the leg threshold recorded is the one at which the held-out '
+                        'scans with nobody in view give RATE false legs per scan (clusters '
+                        f'within --max-range; default {FALSE_LEGS}); 0 = the threshold of '
+                        'the best held-out F1')
+    parser.add_argument('--max-range', type=float, default=PersonDetectorConfig().max_range,
+                        help='clusters farther than this (m) are not classified by the '
+                        'detector (person_detector.max_range) and not counted by '
+                        f'--false-legs (default {PersonDetectorConfig().max_range})')
     parser.add_argument('--threshold', type=float,
-                        help='leg threshold to record (default: best held-out F1)')
+                        help='leg threshold to record (default: by --false-legs)')
     parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     parser.add_argument('--output', '-o', required=True, metavar='NPZ',
                         help='model file to write')
@@ -394,6 +410,23 @@ def scores(p: np.ndarray, y: np.ndarray, leg: np.ndarray, threshold: float,
             'false_legs_per_negative_scan': fp / max(1, negative_scans)}
 
 
+def false_leg_threshold(p: np.ndarray, y: np.ndarray, negative_scans: int,
+                        rate: float) -> float:
+    """The lowest threshold at which at most ``rate`` false legs per negative scan reach it
+    (k = rate x scans negatives): midway between the (k+1)-th most probable negative and
+    the next more probable one, so that negatives of equal probability are all in or all
+    out; 0.5 without negatives."""
+    neg = np.sort(p[y == 0])[::-1]
+    if neg.size == 0:
+        return 0.5
+    k = int(np.floor(rate * negative_scans + 1e-9))
+    if k >= neg.size:
+        return float(0.5 * neg[-1])
+    first_out = neg[k]
+    above = neg[neg > first_out]
+    return float(0.5 * (first_out + (above.min() if above.size else 1.0)))
+
+
 def best_f1_threshold(p: np.ndarray, y: np.ndarray) -> float:
     order = np.argsort(-p, kind='stable')
     ps, ys = p[order], y[order] == 1
@@ -456,12 +489,22 @@ def run(args: argparse.Namespace) -> int:
     threshold = args.threshold
     if args.folds and args.folds > 1:
         threshold, report['held_out'] = _cross_validate(items, table, augmented, groups,
-                                                        args.folds, seg, fit_args, threshold)
+                                                        args.folds, seg, fit_args, threshold,
+                                                        args.false_legs, args.max_range)
     elif threshold is None:
         threshold = 0.5
     model = fit(*training_rows([table] + augmented, set()), **fit_args)
     report['threshold'] = threshold
-    meta = {'threshold': threshold, 'segmentation': report['segmentation'],
+    if args.threshold is not None:
+        rule = 'given'
+    elif not (args.folds and args.folds > 1):
+        rule = '0.5 (no held-out evaluation)'
+    else:
+        rule = f'{args.false_legs:g} false legs per negative scan' if args.false_legs > 0 \
+            else 'best held-out F1'
+    report['threshold_rule'] = rule
+    meta = {'threshold': threshold, 'threshold_rule': rule, 'max_range': args.max_range,
+            'segmentation': report['segmentation'],
             'trained_on': report['recordings'], 'counts': report['counts'],
             'classifier': fit_args, 'match_radius': args.match_radius,
             'augmentation': report['augmentation'],
@@ -513,20 +556,30 @@ def training_rows(tables: list[ClusterTable], held_out: set[str]):
     return np.concatenate(xs), np.concatenate(ys)
 
 
-def _cross_validate(items, table, augmented, groups, folds, seg, fit_args, threshold):
+def _cross_validate(items, table, augmented, groups, folds, seg, fit_args, threshold,
+                    false_legs=FALSE_LEGS, max_range=np.inf):
     blocks = split_groups(groups, folds)
     resampled = {name: cluster_table(items, increment=inc, **seg) for name, inc in RESAMPLED}
     tables = {'recorded': table, **resampled,
               '3x range': cluster_table(items, farther=3.0, **seg)}
     models = [fit(*training_rows([table] + augmented, block), **fit_args) for block in blocks]
-    held = {name: [(t.select(b), model.predict_proba(t.X[t.select(b)])[:, 1])
+    held = {name: [(t.select(b) & _within(t, max_range),
+                    model.predict_proba(t.X[t.select(b) & _within(t, max_range)])[:, 1])
                    for b, model in zip(blocks, models)] for name, t in tables.items()}
     if threshold is None:
-        threshold = best_f1_threshold(np.concatenate([p for _, p in held['recorded']]),
-                                      np.concatenate([table.y[sel]
-                                                      for sel, _ in held['recorded']]))
+        p = np.concatenate([p for _, p in held['recorded']])
+        y = np.concatenate([table.y[sel] for sel, _ in held['recorded']])
+        if false_legs > 0:
+            threshold = false_leg_threshold(p, y, sum(table.negative_scans.values()),
+                                            false_legs)
+            rule = f'{false_legs:g} false legs per scan with nobody in view'
+        else:
+            threshold, rule = best_f1_threshold(p, y), 'best pooled F1'
+        rule += ' at the recorded resolution'
+    else:
+        rule = 'given'
     print(f'held-out evaluation, {len(blocks)} folds by recording; leg threshold '
-          f'{threshold:.3f} (best pooled F1 at the recorded resolution)')
+          f'{threshold:.3f} ({rule})')
     print(f'{"held out":44s} {"resolution":>10s} {"legs":>5s} {"recall":>7s} '
           f'{"precision":>9s} {"false legs/neg. scan":>20s}')
     per_fold, pooled = [], {}
@@ -547,6 +600,11 @@ def _cross_validate(items, table, augmented, groups, folds, seg, fit_args, thres
                                   sum(t.negative_scans.values()))
         _print_row('all folds pooled', name, s)
     return threshold, {'folds': per_fold, 'pooled': pooled}
+
+
+def _within(t: ClusterTable, max_range: float) -> np.ndarray:
+    """Clusters of ``t`` the detector classifies: within ``max_range``."""
+    return t.X[:, FEATURE_NAMES.index('distance')] <= max_range
 
 
 def _short(block) -> str:
