@@ -178,11 +178,11 @@ def test_the_pairing_kernel_computes_hypot_as_python_does():
     them."""
     import math
 
-    from laser_tracker.core.person_detector import _python_hypot
+    from laser_tracker.core.jit import python_hypot
     rng = np.random.default_rng(4)
     xy = rng.normal(size=(20000, 2)) * 10.0 ** rng.uniform(-3, 2, size=(20000, 1))
-    assert [_python_hypot(x, y) for x, y in xy] == [math.hypot(x, y) for x, y in xy]
-    assert _python_hypot(0.0, 0.0) == 0.0 and _python_hypot(-3.0, 4.0) == 5.0
+    assert [python_hypot(x, y) for x, y in xy] == [math.hypot(x, y) for x, y in xy]
+    assert python_hypot(0.0, 0.0) == 0.0 and python_hypot(-3.0, 4.0) == 5.0
 
 
 def test_two_legs_make_one_person_at_their_midpoint():

@@ -87,7 +87,6 @@ import numpy as np
 from laser_tracker.config import param
 from laser_tracker.core import icp, jit
 from laser_tracker.core.geometry import plain_floats, wrap_scalar
-from laser_tracker.core.person_detector import _python_hypot
 from laser_tracker.core.scan import Scan, beam_table
 from laser_tracker.core.self_mask import learn_scan, mask_scan
 
@@ -716,7 +715,7 @@ class ScanMatcher:
 # chain's bookkeeping (key scans, re-seeding), the pose's covariance and, with a self-mask,
 # the masking before the match and the learning after it. It computes as the numpy and
 # Python formulation it replaced, operation for operation (results equal bit for bit):
-# Python's ``math.hypot`` is CPython's (``_python_hypot``), ``x ** 2`` libm's pow (a
+# Python's ``math.hypot`` is CPython's (``jit.python_hypot``), ``x ** 2`` libm's pow (a
 # run-time exponent, ``_S_TWO``, keeps the compiler from folding it into ``x * x``),
 # numpy's 3x3 products sequences of fused multiply-adds as its BLAS computes them, its 3x3
 # solve and inverse LAPACK's dgesv (numba's ``np.linalg.solve``). What it found is packed in
@@ -980,7 +979,7 @@ def _moved_since_key_scan(pose, chain, settings):
     if not chain[_HAS_KEY]:
         return True
     d = _between(chain[_KEY:_KEY + 3], pose)
-    return _python_hypot(d[0], d[1]) >= settings[_S_KEY_T] or abs(d[2]) >= settings[_S_KEY_R]
+    return jit.python_hypot(d[0], d[1]) >= settings[_S_KEY_T] or abs(d[2]) >= settings[_S_KEY_R]
 
 
 @jit.inline
@@ -991,7 +990,7 @@ def _too_fast(x, y, theta, dt, settings):
     if dt <= 0.0:
         return 0, 0.0
     span = dt + settings[_S_JITTER]
-    v = _python_hypot(x, y) / span
+    v = jit.python_hypot(x, y) / span
     w = abs(theta) / span
     if v > settings[_S_SPEED]:
         return 1, v
@@ -1045,7 +1044,7 @@ def _information(model, m, settings, noise):
         vxy, vth = _noise_variance(noise[model], m[0], m[1], m[2])
         return np.array([1.0 / vxy, 1.0 / vxy, 1.0 / vth])
     fixed = settings[_S_FIXED + 6 * model:_S_FIXED + 6 * model + 6]
-    d = _python_hypot(m[0], m[1])
+    d = jit.python_hypot(m[0], m[1])
     sxy = fixed[0] + fixed[1] * d
     sth = fixed[3] + fixed[4] * d + fixed[5] * abs(m[2])
     ixy = 1.0 / math.pow(sxy, settings[_S_TWO])
@@ -1133,7 +1132,7 @@ def _implausible(motion, predicted, pose, has_inc, dt, settings, out):
         return
     if has_inc:
         d = _between(predicted, pose)
-        dist = _python_hypot(d[0], d[1])
+        dist = jit.python_hypot(d[0], d[1])
         if dist > settings[_S_CORRECTION_T] or abs(d[2]) > settings[_S_CORRECTION_R]:
             out[_O_WHY], out[_O_WHY + 1], out[_O_WHY + 2] = _WHY_DISAGREES, dist, abs(d[2])
 

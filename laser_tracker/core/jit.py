@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import os
 import re
 import tempfile
@@ -392,6 +393,35 @@ def _fma_intrinsic():
 
 
 fma = _fma_intrinsic() if _configure() is not None else None
+
+
+@inline
+def python_hypot(x, y):
+    """``math.hypot(x, y)`` as CPython computes it (its ``vector_norm``: scaled, squared
+    and summed in doubled precision, with a differential correction of the square root),
+    which libm's hypot is not, for finite ``x, y`` not both subnormal."""
+    x, y = abs(x), abs(y)
+    largest = max(x, y)
+    if largest == 0.0:
+        return largest
+    scale = math.ldexp(1.0, -math.frexp(largest)[1])
+    csum, frac1, frac2 = 1.0, 0.0, 0.0
+    for v in (x * scale, y * scale):
+        hi = v * v
+        low = fma(v, v, -hi)
+        total = csum + hi
+        frac2 += (csum - total) + hi
+        csum = total
+        frac1 += low
+    h = math.sqrt(csum - 1.0 + (frac1 + frac2))
+    hi = -h * h
+    low = fma(-h, h, -hi)
+    total = csum + hi
+    frac2 += (csum - total) + hi
+    csum = total
+    frac1 += low
+    h += (csum - 1.0 + (frac1 + frac2)) / (2.0 * h)
+    return h / scale
 
 
 @kernel

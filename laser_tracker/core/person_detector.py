@@ -43,7 +43,7 @@ import numpy as np
 
 from laser_tracker.config import param
 from laser_tracker.core import jit
-from laser_tracker.core.jit import fma, pairwise_sum
+from laser_tracker.core.jit import pairwise_sum
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import (FEATURE_NAMES, FEATURE_SET, Clusters,
                                              SegmentConfig, _clusters, as_clusters,
@@ -390,7 +390,7 @@ def _pair_legs(xy, prob, leg_threshold, partner_threshold, single_threshold, pai
     of which one reaches the leg threshold, greedily by their summed probability (ties: in
     candidate order), each leg used once; then each lone leg reaching ``single_threshold``,
     unless within ``pair_distance`` of a pair. Numbers as the former Python formulation gave
-    them: ``_python_hypot`` is ``math.hypot``, and a square is ``pow(d, two)`` (libm's pow,
+    them: ``jit.python_hypot`` is ``math.hypot``, and a square is ``pow(d, two)`` (libm's pow,
     as Python's ``d ** 2``; ``two`` is 2.0, an argument so that it is not folded into
     ``d * d``)."""
     lowest = min(partner_threshold, single_threshold if single_legs else 1.0)
@@ -435,7 +435,7 @@ def _pair_legs(xy, prob, leg_threshold, partner_threshold, single_threshold, pai
         if used[a] or prob[ca] < single_threshold:
             continue
         x, y = xy[ca, 0], xy[ca, 1]
-        scale = 1.0 + offset / max(_python_hypot(x, y), 1e-6)
+        scale = 1.0 + offset / max(jit.python_hypot(x, y), 1e-6)
         x, y = x * scale, y * scale
         alone = True
         for q in range(paired):
@@ -447,32 +447,3 @@ def _pair_legs(xy, prob, leg_threshold, partner_threshold, single_threshold, pai
             legs[p, 0] = ca
             p += 1
     return out[:p, :2].copy(), out[:p, 2].copy(), legs[:p].copy()
-
-
-@jit.inline
-def _python_hypot(x, y):
-    """``math.hypot(x, y)`` as CPython computes it (its ``vector_norm``: scaled, squared
-    and summed in doubled precision, with a differential correction of the square root),
-    which libm's hypot is not, for finite ``x, y`` not both subnormal."""
-    x, y = abs(x), abs(y)
-    largest = max(x, y)
-    if largest == 0.0:
-        return largest
-    scale = math.ldexp(1.0, -math.frexp(largest)[1])
-    csum, frac1, frac2 = 1.0, 0.0, 0.0
-    for v in (x * scale, y * scale):
-        hi = v * v
-        low = fma(v, v, -hi)
-        total = csum + hi
-        frac2 += (csum - total) + hi
-        csum = total
-        frac1 += low
-    h = math.sqrt(csum - 1.0 + (frac1 + frac2))
-    hi = -h * h
-    low = fma(-h, h, -hi)
-    total = csum + hi
-    frac2 += (csum - total) + hi
-    csum = total
-    frac1 += low
-    h += (csum - 1.0 + (frac1 + frac2)) / (2.0 * h)
-    return h / scale
