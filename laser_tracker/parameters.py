@@ -118,6 +118,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.person_min_travel': 0.0,
         'hypotheses.person_confirm_samples': 0,
         'hypotheses.person_confirm_pairs': 0,
+        'hypotheses.person_confirm_time': 0.0,
         'hypotheses.resume_time': 0.0,     # a lost track's id is never resumed
         'hypotheses.duplicate_radius': 0.0,  # every hypothesis confirms after 4 samples
         'hypotheses.confirm_min_travel': 0.0,

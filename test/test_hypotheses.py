@@ -515,6 +515,21 @@ def test_a_person_in_view_is_confirmed_by_both_legs_seen(pairs, spread, static,
     assert first == confirmed_at
 
 
+@pytest.mark.parametrize('person_time, confirmed_at', [(0.0, 7), (0.3, 4), (0.9, 6)])
+def test_a_person_who_walked_in_is_confirmed_after_person_confirm_time(person_time,
+                                                                       confirmed_at):
+    """A hypothesis a person detection started waits ``person_confirm_time`` (0: the
+    ``confirm_time`` of motion blobs, 1.2 s here), and the paper's 4 samples."""
+    cfg = HypothesisConfig(confirm_time=1.2, person_confirm_time=person_time)
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    first = None
+    for k in range(10):
+        r = tr.update(people(k * DT, (2.0 + 0.2 * k, 1.0)))       # walked in (free)
+        if first is None and r.hypotheses.confirmed.any():
+            first = k + 1
+    assert first == confirmed_at
+
+
 def test_new_parameters_reach_every_role_and_the_memory_stays():
     """reconfigure: the next frame runs under the new parameters; hypotheses, earlier frames
     (creation pairs) and ids are kept."""

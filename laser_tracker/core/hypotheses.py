@@ -206,6 +206,12 @@ class HypothesisConfig:
         'who stands in view from the start (in front of a robot that follows them). Chair '
         'and table legs rarely stay detected that long from a moving robot. 0 = off.',
         min=0, max=100000)
+    person_confirm_time: float = param(
+        0.3, 'A hypothesis a person detection started is confirmed once it has lived this '
+        'long (s), instead of confirm_time: each of its samples was a leg shape, and it '
+        'still waits for evidence that it walked or for both legs seen again and again; '
+        'confirm_time guards against motion blobs that flicker. At 7.5 Hz the 4 samples '
+        'take longer. 0 = confirm_time.', min=0.0, max=10.0)
     person_confirm_pairs: int = param(
         8, 'A hypothesis started by a person detection is also confirmed once this many '
         'detections of two legs (a pair within person_detector.pair_distance) off static '

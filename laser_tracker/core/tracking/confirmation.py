@@ -56,8 +56,12 @@ def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
 
 
 def old_enough(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
-    """Lived ``confirm_time`` since its creation, whatever the scan rate."""
-    return frame.stamp - candidates.born >= c.confirm_time
+    """Lived ``confirm_time`` since its creation, whatever the scan rate (a hypothesis a
+    person detection started: ``person_confirm_time`` when set)."""
+    age = frame.stamp - candidates.born
+    if c.person_confirm_time <= 0:
+        return age >= c.confirm_time
+    return age >= np.where(candidates.origin == MOTION, c.confirm_time, c.person_confirm_time)
 
 
 def fast_enough(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
