@@ -371,11 +371,14 @@ class Detector:
             leg = np.zeros(people.leg_xy.shape[0])
         c = self.difference_config
         stamp = float(scan.stamp)
-        walked_out = (0.0 if det.gated else c.walked_out_window, c.walked_out_radius,
+        # walked out: only with people now and people before (the beams' silence is read then)
+        ask = not det.gated and people.xy.shape[0] > 0 and self.recent_people.shape[0] > 0
+        walked_out = (c.walked_out_window if ask else 0.0, c.walked_out_radius,
                       c.walked_out_speed)
         xy, free, static, spread, segments = \
             people_in_odometry(people, pose, stamp, self.history, self.background,
-                               c.motion_depth, self.recent_people, walked_out, scan.silent())
+                               c.motion_depth, self.recent_people, walked_out,
+                               scan.silent() if ask else _NO_BEAMS)
         if self.person_detector is not None:
             d.people = People(xy=xy, confidence=people.confidence, free=free, spread=spread,
                               static=static)
@@ -673,6 +676,10 @@ def _warm_up_tracking() -> None:
                         spread=np.full(1, 0.25), static=np.zeros(1, bool))
         tracker.update(Detections(0.1 * k, np.array(pose), blobs, people,
                                   Segments(xy=legs, leg=np.ones(2))))
+
+
+#: An empty mask of beams (no walked-out test this scan).
+_NO_BEAMS = np.zeros(0, bool)
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:
