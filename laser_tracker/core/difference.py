@@ -146,8 +146,9 @@ class DifferenceConfig:
         1.0, 'A detected person has also walked (like one who walked in) when, in a scan of '
         'the last this many seconds, the person detected nearest them was at least two '
         'walked_out_radius away, within walked_out_speed of reach, and stood where the '
-        'current scan now sees empty space: every beam through a disc of walked_out_radius around that place goes on '
-        'beyond it (by motion_depth times the displacement, as for a changed cell). Someone '
+        'current scan now sees empty space: every beam through a disc of walked_out_radius '
+        'around that place goes on beyond it (by motion_depth times the displacement, as for '
+        'a changed cell) or returns nothing, and one at least goes on. Someone '
         'who walks away from the scanner leaves space seen free, though they never entered '
         'space seen free before (their own shadow); a chair or table leg never leaves its '
         'place, and a track that hops between two of them finds the first one still there. '
@@ -415,8 +416,8 @@ def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, 
     walked in. With ``walked_out`` (window, radius, speed; window 0: off) a person has also
     walked when, in an earlier scan of the window, the detection nearest it (of the
     ``recent`` ones, rows: x, y, stamp and the scanner pose then, in time order) was in reach
-    and at least two radii away and stood where the current grid (buffer ``current``; its beams without a return: ``silent``) sees empty space
-    (:func:`_left_empty`)."""
+    and at least two radii away and stood where the current grid (buffer ``current``; its
+    beams without a return: ``silent``) sees empty space (:func:`_left_empty`)."""
     n, k = persons.shape[0], leg_xy.shape[0]
     world = np.empty((n, 2))
     for r in range(n):

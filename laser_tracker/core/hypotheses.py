@@ -211,7 +211,8 @@ class HypothesisConfig:
         'long (s), instead of confirm_time: each of its samples was a leg shape, and it '
         'still waits for evidence that it walked or for both legs seen again and again; '
         'confirm_time guards against motion blobs that flicker. At 7.5 Hz the 4 samples '
-        'take longer. 0 = confirm_time.', min=0.0, max=10.0)
+        'take longer. 0 = confirm_time; with confirm_time 0 no time applies.', min=0.0,
+        max=10.0)
     person_confirm_pairs: int = param(
         8, 'A hypothesis started by a person detection is also confirmed once this many '
         'detections of two legs (a pair within person_detector.pair_distance) off static '
@@ -379,9 +380,8 @@ def _exercise_kernels() -> None:
         association._claims(xy, xy, np.ones(n), mask, xy, 0.5, 0.5, 0.45)
         association._equation_3(r['weight'], r['samples'], np.ones(n), 60.0, 150.0)
         association._person_measured(r['weight'], r['samples'], r['person_samples'],
-                                     r['pair_samples'],
-                                     r['spread'], r['origin'], xy, xy, mask, np.ones(n), 60.0,
-                                     150.0, 0.25, 0.1)
+                                     r['pair_samples'], r['spread'], r['origin'], xy, xy,
+                                     mask, np.ones(n), 60.0, 150.0, 0.25, 0.1)
         frame_kernels._into_frame(r['position'], 0.0, 0.0, 1.0, 0.0)
         frame_kernels._into_frame(xy, 0.0, 0.0, 1.0, 0.0)
         frame_kernels._all_finite(xy, np.ones(n))

@@ -7,6 +7,7 @@ something, :meth:`Scan.free_ranges` how far each beam saw free space.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -84,6 +85,14 @@ class Scan:
         r = self.ranges
         with np.errstate(invalid='ignore'):
             return ~(self.valid() | (r == -np.inf))
+
+    def with_no_returns_as_inf(self) -> Scan:
+        """A copy whose no-return codes (0 and readings below ``range_min``, which older
+        drivers write) read +inf, as a driver following REP 117 writes them (-inf stays)."""
+        r = self.ranges.copy()
+        with np.errstate(invalid='ignore'):
+            r[(r >= 0) & (r < self.range_min)] = np.inf
+        return dataclasses.replace(self, ranges=r)
 
     def points(self, max_range: float | None = None) -> np.ndarray:
         """Cartesian end points (M, 2) of the valid beams, in the laser frame."""

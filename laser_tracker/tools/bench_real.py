@@ -94,10 +94,7 @@ def no_returns_as_inf(src: Path, dst: Path, scan_topics) -> None:
 
     with BagWriter(dst) as bag:
         for topic, t_ns, msg in iter_messages(src, scan_topics):
-            scan = scan_from_msg(msg)
-            r = scan.ranges
-            with np.errstate(invalid='ignore'):
-                r[(r >= 0) & (r < scan.range_min)] = math.inf
+            scan = scan_from_msg(msg).with_no_returns_as_inf()
             bag.write(topic, scan_to_msg(FACTORY, scan), int(t_ns))
 
 

@@ -129,9 +129,7 @@ def write_scene(src: str | Path, dst: str | Path, no_return_as_inf: bool = False
     with BagWriter(dst) as bag:
         for k, scan in enumerate(scans):
             if no_return_as_inf:
-                r = scan.ranges
-                with np.errstate(invalid='ignore'):
-                    r[(r >= 0) & (r < scan.range_min)] = np.inf
+                scan = scan.with_no_returns_as_inf()
             t_ns = int(round(scan.stamp * 1e9))
             bag.write(SCENE_SCAN_TOPIC, scan_to_msg(FACTORY, scan), t_ns)
             for m in np.flatnonzero(people.scan == k):

@@ -83,8 +83,7 @@ class PersonAssociation(Role):
         self.filter.support(out, persons, frame.stamp)
         o = out.rows
         _person_measured(o['weight'], o['samples'], o['person_samples'], o['pair_samples'],
-                         o['spread'],
-                         o['origin'], pred[rows], persons, frame.free[which],
+                         o['spread'], o['origin'], pred[rows], persons, frame.free[which],
                          frame.spread[which], c.w_inc, c.w_dec / c.distance_unit,
                          c.person_tolerance, c.gait_spread)
         out.supported, out.stopped = True, False
@@ -151,13 +150,13 @@ def _equation_3(weight, samples, d, w_inc, w_dec):
 
 @jit.kernel
 def _person_measured(weight, samples, person_samples, pair_samples, spread, origin, pred,
-                     persons, free,
-                     seen, w_inc, w_dec, tolerance, gait):
+                     persons, free, seen, w_inc, w_dec, tolerance, gait):
     """Hypotheses (their fields, in place) predicted at ``pred`` and supported by person
     detections ``persons`` (walked in: ``free``; leg separation ``seen``, NaN: none): Eq. 3
     with the distance beyond ``tolerance`` (``w_dec`` per metre), one more sample of both
-    kinds (and of two legs when ``seen``), the least and largest separation seen, and walking (``PERSON_WALKED_IN``) once
-    walked in or the separation varied by ``gait`` (above 0)."""
+    kinds (and of two legs when ``seen``: a pair off static background), the least and
+    largest separation seen, and walking (``PERSON_WALKED_IN``) once walked in or the
+    separation varied by ``gait`` (above 0)."""
     for i in range(weight.size):
         d = max(np.hypot(persons[i, 0] - pred[i, 0], persons[i, 1] - pred[i, 1]) - tolerance,
                 0.0)

@@ -22,10 +22,10 @@ def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np
     something (chair and table legs look like legs) only once it has moved
     ``person_min_travel`` from where it started, both in the world (not clutter the robot
     passes) and in the scanner's frame (not something riding along with the robot); or once
-    ``person_confirm_samples`` detections, or ``person_confirm_pairs`` detections of two legs
-    off static background, supported it (someone in view from the start). A detection standing in space
-    seen free before (someone who walked in), away from a place the scan sees left empty
-    (walked out) or legs whose separation swings (``gait_spread``) made it
+    ``person_confirm_samples`` detections, or ``person_confirm_pairs`` detections of two
+    legs off static background, supported it (someone in view from the start). A detection
+    standing in space seen free before (someone who walked in), away from a place the scan
+    sees left empty (walked out) or legs whose separation swings (``gait_spread``) made it
     ``PERSON_WALKED_IN``: no restriction."""
     h = candidates
     start = ((h.position - h.start) ** 2).sum(axis=1)
