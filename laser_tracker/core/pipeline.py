@@ -43,7 +43,8 @@ from laser_tracker.core.person_detector import PersonDetectorConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig
 from laser_tracker.core.self_mask import SelfMaskConfig
-from laser_tracker.core.stages import Detection, Detector, EgoMotion, StampedPose, Tracker
+from laser_tracker.core.stages import (Detection, Detector, EgoMotion, StampedPose, Tracker,
+                                      _warm_up, _warm_up_scene)
 from laser_tracker.core.tracking.state import Hypotheses
 
 
@@ -140,6 +141,7 @@ class Pipeline:
         self.detector = Detector(c.grid, c.difference, c.blobs, c.person_detector,
                                  times=self.times if profile else None, segments=c.segments)
         self.tracker = Tracker(c.hypotheses, c.kalman)
+        _warm_up('pipeline', _warm_up_pipeline)
 
     # ------------------------------------------------------------------ streams
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list[StepResult]:
@@ -216,3 +218,19 @@ class Pipeline:
     @property
     def sources(self) -> Counter:
         return Counter(self.ego.sources)
+
+
+def _warm_up_pipeline() -> None:
+    """The stages composed, as :meth:`Pipeline.step` runs them, on the synthetic scans of
+    the stages' warm-ups (with odometry), once per process and after every stage's kernels
+    are loaded: the stages' own warm-ups run before the kernels of the stages built after
+    them are loaded, and loading them leaves the earlier stages' code cold again (each stage
+    then runs its first real scans up to twice as slowly). Nothing of it is kept: the
+    pipeline is thrown away, its estimator does not rehearse the process's first match
+    (``egomotion._rehearse``, kept for the first real scan)."""
+    pipeline = Pipeline()
+    pipeline.ego.estimator.rehearses = False
+    for k in range(10):
+        scan, pose, _ = _warm_up_scene(k)
+        pipeline.add_odometry(scan.stamp, pose)
+        pipeline.step(scan)
