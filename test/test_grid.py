@@ -10,7 +10,7 @@ import pytest
 
 from laser_tracker.core.difference import DifferenceConfig, changed_cells, difference_map
 from laser_tracker.core.grid import (FREE, OCCUPIED, PAD, UNKNOWN, GridBuilder, GridConfig,
-                                     build_grid, lookup_grid, transform_grid)
+                                     build_grid, lookup_grid, ray_table, transform_grid)
 from laser_tracker.core.scan import Scan
 
 RES = 0.1
@@ -98,6 +98,53 @@ def test_beam_count_change_uses_a_new_ray_table():
         assert g[cell_of(1.0, 0.0)] == FREE
         assert g[cell_of(0.0, 1.99)] == OCCUPIED or g[cell_of(0.0, 1.95)] == OCCUPIED
         assert g[cell_of(2.5, 0.0)] == UNKNOWN
+
+
+def _ray_table_with_numpy(angle_min, angle_increment, n_beams, cells, resolution,
+                          free_margin):
+    """The ray table as whole-array numpy arithmetic (how the kernel must compute it)."""
+    m = cells + 2 * PAD
+    c = (np.arange(m) - PAD + 0.5 - cells / 2.0) * resolution
+    cx, cy = np.meshgrid(c, c, indexing='ij')
+    rng = np.hypot(cx, cy).ravel()
+    bearing = np.arctan2(cy, cx).ravel()
+    inc = float(angle_increment)
+    delta = np.mod((bearing - angle_min) * math.copysign(1.0, inc), 2.0 * math.pi)
+    k = delta / abs(inc)
+    beam = np.rint(k)
+    wrapped = np.rint(k - 2.0 * math.pi / abs(inc))
+    use_wrapped = (beam > n_beams - 1) & (wrapped >= 0) & (wrapped <= n_beams - 1)
+    beam = np.where(use_wrapped, wrapped, beam)
+    beam = np.where((beam >= 0) & (beam <= n_beams - 1), beam, n_beams).astype(np.intp)
+    reach = (rng + free_margin).astype(np.float32)
+    border = np.ones((m, m), bool)
+    border[PAD:-PAD, PAD:-PAD] = False
+    beam[border.ravel()] = n_beams
+    reach[border.ravel()] = np.inf
+    return beam, reach
+
+
+@pytest.mark.parametrize('angle_min, angle_increment, n_beams, cells, resolution, margin', [
+    (float(np.float32(-math.pi / 2)), float(np.float32(math.pi / 360)), 361, 160, 0.1, 0.1),
+    (-math.pi / 2, math.pi / 360, 361, 160, 0.1, 0.1),
+    (-2.0862138271331787, 0.005759586766362190, 726, 160, 0.1, 0.1),     # Hokuyo-class
+    (-math.pi, 2 * math.pi / 720, 720, 80, 0.1, 0.0),                    # all around
+    (math.pi / 2, -math.pi / 180, 181, 100, 0.07, 0.2),                  # sweeping clockwise
+    (0.3, 0.01, 50, 40, 0.25, 0.1),                                      # a narrow view
+    (-3.0, 0.05, 200, 64, 0.1, 0.1),                                     # wrapping around
+])
+def test_the_ray_table_is_numpys_to_the_bit(angle_min, angle_increment, n_beams, cells,
+                                            resolution, margin):
+    """The kernel's ray table (cell bearings and reach made per grid, beams per scan
+    geometry) equals the whole-array numpy arithmetic exactly."""
+    table = ray_table(angle_min, angle_increment, n_beams, cells, resolution, margin)
+    beam, reach = _ray_table_with_numpy(angle_min, angle_increment, n_beams, cells,
+                                        resolution, margin)
+    assert table.beam.dtype == beam.dtype and table.reach.dtype == reach.dtype
+    assert np.array_equal(table.beam, beam)
+    assert np.array_equal(table.reach, reach)
+    assert table.n_beams == n_beams
+    assert not table.beam.flags.writeable and not table.reach.flags.writeable
 
 
 def test_full_circle_scanner_sees_behind():

@@ -141,30 +141,79 @@ def ray_table(angle_min: float, angle_increment: float, n_beams: int, cells: int
 
     Indexed by the flat index of the *padded* grid (``cells + 2`` per side, see
     :class:`GridBuilder`); the border cells have no beam and infinite reach (never FREE).
+    What depends on the grid alone (the cells' bearings and reach) is made once per grid
+    geometry (:func:`cell_bearings`, :func:`cell_reach`: a :class:`GridBuilder` makes them
+    when it is built), the beams of the cells per beam geometry in one kernel call
+    (:func:`_cell_beams`), at the first scan of that geometry.
     """
+    bearing = cell_bearings(cells, resolution)
+    inc = float(angle_increment)
+    beam = np.empty(bearing.size, np.intp)
+    _cell_beams(bearing, float(angle_min), math.copysign(1.0, inc), abs(inc),
+                2.0 * math.pi / abs(inc), n_beams, cells + 2 * PAD, beam)
+    beam.setflags(write=False)
+    return RayTable(beam=beam, reach=cell_reach(cells, resolution, free_margin),
+                    n_beams=n_beams)
+
+
+def _cell_centres_padded(cells: int, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """x and y (m, scanner frame) of the centre of every cell of the padded grid."""
     m = cells + 2 * PAD
     c = (np.arange(m) - PAD + 0.5 - cells / 2.0) * resolution
-    cx, cy = np.meshgrid(c, c, indexing='ij')
-    rng = np.hypot(cx, cy).ravel()
+    return np.meshgrid(c, c, indexing='ij')
+
+
+@lru_cache(maxsize=4)
+def cell_bearings(cells: int, resolution: float) -> np.ndarray:
+    """The bearing (rad, scanner frame) of every cell centre of the padded grid (flat)."""
+    cx, cy = _cell_centres_padded(cells, resolution)
     bearing = np.arctan2(cy, cx).ravel()
-    inc = float(angle_increment)
-    # Fractional beam index of each cell's bearing, measured in the scan's direction of sweep.
-    delta = np.mod((bearing - angle_min) * math.copysign(1.0, inc), 2.0 * math.pi)
-    k = delta / abs(inc)
-    beam = np.rint(k)
-    wrapped = np.rint(k - 2.0 * math.pi / abs(inc))  # bearings just before angle_min
-    use_wrapped = (beam > n_beams - 1) & (wrapped >= 0) & (wrapped <= n_beams - 1)
-    beam = np.where(use_wrapped, wrapped, beam)
-    beam = np.where((beam >= 0) & (beam <= n_beams - 1), beam, n_beams).astype(np.intp)
-    reach = (rng + free_margin).astype(np.float32)
+    bearing.setflags(write=False)
+    return bearing
+
+
+@lru_cache(maxsize=4)
+def cell_reach(cells: int, resolution: float, free_margin: float) -> np.ndarray:
+    """The range (m, float32) a beam must reach to free each cell of the padded grid (flat):
+    the cell centre's range plus ``free_margin``; infinite on the border (never FREE)."""
+    cx, cy = _cell_centres_padded(cells, resolution)
+    reach = (np.hypot(cx, cy).ravel() + free_margin).astype(np.float32)
+    m = cells + 2 * PAD
     border = np.ones((m, m), bool)
     border[PAD:-PAD, PAD:-PAD] = False
-    border = border.ravel()
-    beam[border] = n_beams
-    reach[border] = np.inf
-    beam.setflags(write=False)
+    reach[border.ravel()] = np.inf
     reach.setflags(write=False)
-    return RayTable(beam=beam, reach=reach, n_beams=n_beams)
+    return reach
+
+
+@jit.kernel
+def _cell_beams(bearing, angle_min, sign, step, turn, n_beams, m, beam):
+    """Into ``beam``: for every cell of the padded grid (``m`` per side; ``bearing``: of its
+    centre), the beam whose direction passes nearest it, ``n_beams`` when none does or on
+    the border. The beams' directions are ``angle_min + i * sign * step``; ``turn`` is
+    ``2 pi / step``. Each cell's arithmetic is numpy's (``np.mod``'s floored remainder,
+    ``np.rint``), so that the table is the same to the bit whichever way it is made."""
+    two_pi = 2.0 * math.pi
+    last = n_beams - 1
+    for p in range(bearing.size):
+        i, j = p // m, p % m
+        if i < PAD or i >= m - PAD or j < PAD or j >= m - PAD:
+            beam[p] = n_beams
+            continue
+        # np.mod(a, 2 pi): fmod, moved into [0, 2 pi) as numpy does (npy_divmod)
+        a = (bearing[p] - angle_min) * sign
+        delta = np.fmod(a, two_pi)
+        if delta != 0.0:
+            if delta < 0.0:
+                delta += two_pi
+        else:
+            delta = 0.0
+        k = delta / step
+        b = np.rint(k)
+        wrapped = np.rint(k - turn)      # bearings just before angle_min
+        if b > last and wrapped >= 0 and wrapped <= last:
+            b = wrapped
+        beam[p] = int(b) if b >= 0 and b <= last else n_beams
 
 
 def cell_centres(cells: int, resolution: float, flat: np.ndarray) -> np.ndarray:
@@ -556,6 +605,9 @@ class GridBuilder:
         self._which = 0
         self._table_key = None
         self._table: RayTable | None = None
+        # what the ray tables of this grid share, made now rather than at the first scan
+        cell_bearings(self.cells, float(config.resolution))
+        cell_reach(self.cells, float(config.resolution), float(config.free_margin))
         self.echo = np.zeros(2)                      # share of echoes lost: mean, scans
         cos_graze = math.cos(math.radians(config.grazing_incidence))
         self.settings = np.array([config.resolution, config.no_return_bounds,
