@@ -643,11 +643,20 @@ class StaticBackground:
         self.previous: float | None = None
         bits = max(1, int(size - 1).bit_length())      # size: a power of two
         n = 1 << (2 * bits)
-        self.key = np.full(n, np.iinfo(np.int64).min, np.int64)
-        self.count = np.zeros(n, np.float64)
-        self.last = np.zeros(n, np.float64)
+        # written whole now (np.full, not np.zeros' untouched pages): the memory is the
+        # process's before the first scan, not page by page as the first scans hit it
+        self.key = np.full(n, _NO_KEY, np.int64)
+        self.count = np.full(n, 0.0)
+        self.last = np.full(n, 0.0)
         self.settings = np.array([1.0 / self.resolution, config.static_time,
                                   config.static_occupied, bits])
+
+    def clear(self) -> None:
+        """Forget every hit: the state of a new background (its memory kept)."""
+        self.previous = None
+        self.key.fill(_NO_KEY)
+        self.count.fill(0.0)
+        self.last.fill(0.0)
 
     @property
     def arrays(self) -> tuple:
@@ -677,6 +686,8 @@ class StaticBackground:
 
 
 _NO_POINTS = np.zeros((0, 2))
+#: The key of a slot no cell has hit.
+_NO_KEY = np.iinfo(np.int64).min
 _NO_BACKGROUND = (np.zeros(1, np.int64), np.zeros(1), np.zeros(1), np.zeros(0))
 #: No earlier person detections (rows: x, y, stamp, scanner pose x, y, theta).
 _NO_RECENT = np.zeros((0, 6))

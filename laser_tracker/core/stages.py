@@ -281,13 +281,18 @@ class Detector:
         d = self.difference_config
         self.depth = max(d.max_history, d.memory + 1)
         self.builder = GridBuilder(self.grid_config, keep=self.depth + 1)
+        self.background: StaticBackground | None = None      # made anew for a new geometry
         self.reset()
 
     def reset(self) -> None:
         self.history = GridHistory(self.builder, self.depth)   # earlier grids, newest first
         d = self.difference_config
-        self.background = StaticBackground(self.grid_config.resolution, d) \
-            if d.static_time > 0 else None
+        if d.static_time <= 0:
+            self.background = None
+        elif self.background is not None:       # the same configuration: its memory reused
+            self.background.clear()
+        else:
+            self.background = StaticBackground(self.grid_config.resolution, d)
         # People detected in the last difference.walked_out_window seconds: x, y, stamp and
         # the scanner pose (odometry frame).
         self.recent_people = np.zeros((0, 6))
