@@ -10,6 +10,15 @@ hour at 5 Hz = 18,000 scans) with checkpoints, to show it stays flat. Without bu
 recordings the scans come from the simulator (``laser_tracker.tools.sim``), else from a
 synthetic room with a walker.
 
+Start-up (``--start-up N``): per recording, ``N`` fresh Python processes, each loading the
+compiled kernels from the cache: the seconds to import the package and to make the
+pipeline (kernels loaded, stages warmed up), the milliseconds of each of the first scans
+(the odometry before each included) and the median scan further on (scans 21 to
+``--start-up-scans``); then the same first scans through a second pipeline of the same
+process, whose code has run them once (what the first scans would take with nothing left
+to warm up). Medians over the processes. ``--cold`` adds one process with an empty cache,
+which compiles every kernel first.
+
 Reference speed makes figures of different machines comparable: ``t`` is the best of 3
 timings of 1,000 rounds of ``cKDTree(a).query(b); np.linalg.svd(a.T @ b)`` on two 361 x 2
 random arrays, per round; a machine with ``t`` = :data:`REFERENCE_ROUND` (0.174 ms) is the
@@ -20,7 +29,12 @@ from __future__ import annotations
 
 import argparse
 import gc
+import json
 import logging
+import os
+import subprocess
+import sys
+import tempfile
 import time
 import tracemalloc
 from pathlib import Path
@@ -48,6 +62,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--long-scans', type=int, default=18000,
                         help='scans of the long memory run (default 18000 = 1 h at 5 Hz; '
                         '0 = skip)')
+    parser.add_argument('--start-up', type=int, default=0, metavar='N',
+                        help='also time the start of N fresh processes per recording '
+                        '(kernels from the cache): pipeline made, first scans, median scan '
+                        'further on (default 0 = skip)')
+    parser.add_argument('--start-up-scans', type=int, default=300, metavar='S',
+                        help='scans per start-up process (default 300)')
+    parser.add_argument('--cold', action='store_true',
+                        help='with --start-up: one more process per recording with an empty '
+                        'kernel cache (compiles every kernel: about a minute)')
 
 
 class Events:
@@ -228,6 +251,82 @@ def memory_run(events: Events, config: PipelineConfig, n_scans: int,
     return out
 
 
+#: First scans timed one by one at start-up.
+FIRST_SCANS = 6
+
+
+def scan_times(pipeline: Pipeline, events: Events, n_scans: int) -> list[float]:
+    """Seconds of each of the first ``n_scans`` scans of ``events`` in ``pipeline``: its
+    :meth:`Pipeline.step` and the :meth:`Pipeline.add_odometry` of the odometry received
+    since the previous scan (the events are made one by one as a node receives them,
+    outside the timing)."""
+    out: list[float] = []
+    spent = 0.0
+    for e in events.cycle(n_scans):
+        t0 = time.perf_counter()
+        if e[0] == 'odom':
+            pipeline.add_odometry(e[1], e[2])
+            spent += time.perf_counter() - t0
+            continue
+        pipeline.step(e[1])
+        out.append(spent + time.perf_counter() - t0)
+        spent = 0.0
+    return out
+
+
+def start_up_trial(started: float, name: str, config_path: str | None, n_scans: int) -> dict:
+    """One fresh process's start (``started``: ``time.perf_counter()`` before the package
+    was imported); prints and returns its figures (see the module docstring)."""
+    imported = time.perf_counter() - started
+    logging.basicConfig(level=logging.ERROR)
+    logging.getLogger('laser_tracker').setLevel(logging.ERROR)
+    config = PipelineConfig.load(config_path) if config_path else PipelineConfig()
+    events = sources([name])[0]
+    t0 = time.perf_counter()
+    pipeline = Pipeline(config)
+    made = time.perf_counter() - t0
+    first = scan_times(pipeline, events, max(n_scans, FIRST_SCANS))
+    again = scan_times(Pipeline(config), events, FIRST_SCANS)
+    out = {'import': imported, 'made': made, 'scans': first[:FIRST_SCANS],
+           'median': float(np.median(first[20:] or first)), 'again': again,
+           'beams': next(e[1].n_beams for e in events.events if e[0] == 'scan')}
+    print(json.dumps(out))
+    return out
+
+
+def start_up(name: str, config_path: str | None, n_scans: int, cold: bool = False) -> dict:
+    """:func:`start_up_trial` in a fresh Python process (``cold``: with an empty, temporary
+    kernel cache)."""
+    import laser_tracker
+
+    env = dict(os.environ)
+    root = str(Path(laser_tracker.__file__).resolve().parent.parent)
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
+    code = ('import time; t = time.perf_counter(); '
+            'from laser_tracker.tools.bench_pipeline import start_up_trial; '
+            f'start_up_trial(t, {name!r}, {config_path!r}, {int(n_scans)})')
+    with tempfile.TemporaryDirectory() as cache:
+        if cold:
+            env['NUMBA_CACHE_DIR'] = cache
+        done = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                              text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _start_up_rows(name: str, trials: list[dict], label: str) -> list[str]:
+    def med(key):
+        return float(np.median([t[key] for t in trials]))
+
+    def ms(values):
+        return ' '.join(f'{1e3 * v:>6.2f}' for v in np.median(values, axis=0))
+
+    beams = trials[0]['beams']
+    return [f'{name[:34]:<34} {beams:>5} {label:>9} {med("import"):>8.2f} {med("made"):>8.2f} '
+            f'{ms([t["scans"] for t in trials])} {1e3 * med("median"):>7.2f}',
+            f'{"":<34} {"":>5} {"":>9} {"":>8} {"same":>8} '
+            f'{ms([t["again"] for t in trials])}']
+
+
 def reference_round(rounds: int = 1000, repeat: int = 3) -> float:
     """Seconds per round of ``cKDTree(a).query(b); np.linalg.svd(a.T @ b)`` on two 361 x 2
     random arrays (best of ``repeat`` timings of ``rounds`` rounds)."""
@@ -272,6 +371,23 @@ def run(args: argparse.Namespace) -> int:
         print(f'{"":<34} {"":>5} {"":>8} {"":>7} ego-motion stage '
               f'{1e3 * r["stages"]["ego_motion"]:.0f} us per scan; sources {r["sources"]}, '
               f'cpu/wall {r["cpu"] / r["wall"]:.2f}, hypotheses created {r["created"]}')
+    if args.start_up > 0:
+        print(f'\nstart-up: per recording {args.start_up} fresh processes, kernels loaded from '
+              f'the cache (medians); seconds to import the package and to make the pipeline '
+              f'(kernels loaded, stages warmed up), ms of scans 1-{FIRST_SCANS} (odometry '
+              f'included) and the median scan of scans 21-{args.start_up_scans}; "same": '
+              f'those first scans again through a second pipeline of the process')
+        print(f'{"recording":<34} {"beams":>5} {"processes":>9} {"import s":>8} {"made s":>8} '
+              + ' '.join(f'{"scan " + str(k + 1):>6}' for k in range(FIRST_SCANS))
+              + f' {"median":>7}')
+        for name in args.bag or DEFAULT_BAGS:
+            trials = [start_up(name, args.config, args.start_up_scans)
+                      for _ in range(args.start_up)]
+            for line in _start_up_rows(name, trials, str(len(trials))):
+                print(line)
+            if args.cold:
+                cold = start_up(name, args.config, args.start_up_scans, cold=True)
+                print(_start_up_rows(name, [cold], 'cold')[0])
     rec = recordings[0]   # the first (stationary) recording cycles cleanly
     print(f'\nmemory (tracemalloc, pipeline state only) on {rec.name}, stamps continuing '
           f'over repeats')
