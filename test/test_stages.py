@@ -261,3 +261,32 @@ def test_stream_rules_classify():
     rules.accept(1.0)
     assert [rules.classify(t) for t in (1.0, 0.5, 2.5, 1.5, math.nan, -1.0)] == [
         'duplicate', 'backwards', 'gap', 'next', 'invalid', 'invalid']
+
+
+def test_a_reset_detector_reuses_its_background_and_equals_a_new_one():
+    """A reset (time going backwards) clears the static background in place (its memory
+    kept) and detects what a new detector detects, to the bit."""
+    from laser_tracker.core.stages import _warm_up_scene
+
+    def scans(first):
+        for k in range(first, first + 8):
+            scan, at, _ = _warm_up_scene(k)
+            yield scan, StampedPose(stamp=scan.stamp, pose=np.array(at), motion=np.zeros(3),
+                                    motion_covariance=np.zeros((3, 3)),
+                                    pose_covariance=np.zeros((3, 3)), quality=PoseQuality())
+
+    used = Detector()
+    for scan, at in scans(10):
+        used.update(scan, at)
+    background = used.background
+    assert (background.count > 0).any()
+    fresh = Detector()
+    for (scan, at), k in zip(scans(0), range(8)):
+        a, b = used.update(scan, at), fresh.update(scan, at)    # the first: time went back
+        assert np.array_equal(a.detections.blobs.xy, b.detections.blobs.xy)
+        assert np.array_equal(a.detections.people.xy, b.detections.people.xy)
+        assert a.changed == b.changed
+    assert used.background is background
+    for name in ('key', 'count', 'last'):
+        assert np.array_equal(getattr(used.background, name), getattr(fresh.background, name))
+    assert used.background.previous == fresh.background.previous
