@@ -617,7 +617,8 @@ def _exercise_detection() -> None:
 # A stage's first scans run at full speed only once Python has specialised its code (after
 # several calls of each function) and the processor's caches hold it: each stage runs a few
 # synthetic scans at its construction, once per process (its kernels are compiled or loaded
-# by then: ``jit.compiled``).
+# by then: ``jit.compiled``). Loading the kernels of a stage made later undoes part of it:
+# ``pipeline.Pipeline`` runs the stages together once more when all of them are made.
 
 _warmed: set[str] = set()
 
