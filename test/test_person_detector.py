@@ -11,6 +11,7 @@ from laser_tracker.core.person_detector import (MODEL_VERSION, PACKAGED_MODEL,
                                                 DetectorModelError, LegClassifier,
                                                 PersonDetector, PersonDetectorConfig,
                                                 load_model, save_model)
+from laser_tracker.core.grid import GridConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import FEATURE_NAMES, FEATURE_SET
 from laser_tracker.errors import LaserTrackerError
@@ -222,6 +223,19 @@ def test_a_lone_leg_next_to_a_pair_adds_no_person():
     det = PersonDetector(PersonDetectorConfig(pair_distance=0.6), width_classifier())
     out = det.detect(scene([(2.0, 0.0, 0.06), (2.0, 0.3, 0.06), (2.0, 0.6, 0.06)]))
     assert out.count == 1 and (out.legs[0] >= 0).all()
+
+
+def test_people_are_found_as_far_as_the_grid_reaches():
+    """A person 9.5 m away (inside the grid's corners, beyond the 8 m its axes reach) is found
+    by default and not when the detector stops at 8 m; the default reaches every cell."""
+    far = scene([(9.5 * np.cos(0.6) - 0.15 * np.sin(0.6), 9.5 * np.sin(0.6) + 0.15 * np.cos(0.6),
+                  0.07),
+                 (9.5 * np.cos(0.6) + 0.15 * np.sin(0.6), 9.5 * np.sin(0.6) - 0.15 * np.cos(0.6),
+                  0.07)], n_beams=1081, fov=np.radians(270), range_max=30.0)
+    assert PersonDetector(PersonDetectorConfig(), width_classifier()).detect(far).count == 1
+    near_only = PersonDetector(PersonDetectorConfig(max_range=8.0), width_classifier())
+    assert near_only.detect(far).count == 0
+    assert PersonDetectorConfig().max_range >= GridConfig().size / np.sqrt(2)
 
 
 def test_wide_objects_and_thresholds():

@@ -276,8 +276,11 @@ class PersonDetectorConfig:
     pair_distance: float = param(0.6, 'Two legs at most this far apart (m, between cluster '
                                  'centres) are one person: a stride at knee height.',
                                  min=0.05, max=2.0)
-    max_range: float = param(8.0, 'Segments (segments.*) farther than this (m) are not '
-                             'classified.', min=0.1, max=100.0)
+    max_range: float = param(12.0, 'Segments (segments.*) farther than this (m) are not '
+                             'classified: as far as the grid reaches (half its diagonal, '
+                             '11.3 m at grid.size 16), where a person\'s track can still be '
+                             'confirmed and followed; beyond it, a leg shape alone would only '
+                             'make tracks that nothing confirms.', min=0.1, max=100.0)
     max_legs: int = param(32, 'At most this many leg candidates per scan (the most probable) '
                           'are paired: bounds the work in a crowd.', min=2, max=1000)
 
