@@ -43,6 +43,7 @@ import numpy as np
 
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import Scan
+from laser_tracker.errors import LaserTrackerError
 
 DEFAULT_BAGS = ('exp1_stationary_single_walker', 'exp2_translating_static',
                 'exp3_rotating_static', 'crossing_walkers', 'hokuyo_corridor_lobby')
@@ -173,19 +174,25 @@ def synthetic(n: int = 200) -> Events:
     return _finish('synthetic room', events)
 
 
-def sources(names) -> list[Events]:
+def sources(names, named: bool = True) -> list[Events]:
+    """The recordings ``names``: a bag, else the simulator scenario of that name. A ``named``
+    one (given by the user) that is neither is an error; the defaults fall back to synthetic
+    scans when none can be had (an install without its recordings)."""
     out = []
     for name in names:
         try:
             out.append(load_bag(name))
             continue
-        except Exception:  # noqa: BLE001 - fall back to the simulator
-            pass
+        except Exception as exc:  # noqa: BLE001 - fall back to the simulator
+            problem = exc
         try:
             out.append(load_sim(Path(name).name))
             continue
         except Exception:  # noqa: BLE001 - fall back to synthetic scans
             pass
+        if named:
+            raise LaserTrackerError(f'bench pipeline: {name!r} is neither a readable recording '
+                                    f'nor a simulator scenario ({problem})')
     return out or [synthetic()]
 
 
@@ -348,7 +355,7 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.ERROR)
     logging.getLogger('laser_tracker').setLevel(logging.ERROR)   # the figures, not the logs
     config = PipelineConfig.load(args.config) if args.config else PipelineConfig()
-    recordings = sources(args.bag or DEFAULT_BAGS)
+    recordings = sources(args.bag or DEFAULT_BAGS, named=bool(args.bag))
     print(f'pipeline benchmark: {", ".join(r.name for r in recordings)}; one core, '
           f'grid {config.grid.cells} x {config.grid.cells} cells of '
           f'{config.grid.resolution * 100:.0f} cm, Kalman mode {config.kalman.mode}')
