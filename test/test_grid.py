@@ -372,6 +372,26 @@ def test_the_end_of_a_facing_wall_bounds_only_for_a_scanner_that_loses_echoes():
     assert keeps.build(scan_180(ranges)).grid[past_the_end] == FREE
 
 
+def test_a_lost_echo_frees_only_lost_echo_free_on_a_scanner_that_loses_echoes():
+    """A wall 2 m ahead whose middle returns nothing (a dark patch): on a scanner that loses
+    echoes, lost_echo_free bounds what the silent beams free (here to 1 m, short of the
+    wall's chord), and a scanner that does not lose echoes frees no_return_free as before."""
+    n = 181
+    angles = np.linspace(-math.pi / 2, math.pi / 2, n)
+    ranges = 2.0 / np.maximum(np.cos(angles), 1e-3)
+    ranges[ranges > 2.9] = np.inf
+    ranges[85:96] = np.inf
+    near, far = cell_of(0.5, 0.0), cell_of(1.5, 0.0)
+    default = GridBuilder(dataclasses.replace(BOUNDED, lost_echoes=0.0))
+    grid = default.build(scan_180(ranges)).grid
+    assert grid[near] == FREE and grid[far] == FREE      # up to the chord at 2 m
+    bounded = GridBuilder(dataclasses.replace(BOUNDED, lost_echoes=0.0, lost_echo_free=1.0))
+    grid = bounded.build(scan_180(ranges)).grid
+    assert grid[near] == FREE and grid[far] == UNKNOWN
+    sees_all = GridBuilder(dataclasses.replace(BOUNDED, lost_echoes=1.0, lost_echo_free=1.0))
+    assert sees_all.build(scan_180(ranges)).grid[far] == FREE
+
+
 def test_gaps_are_bridged_only_for_a_scanner_that_loses_echoes():
     """A scanner that returns from every surface in range sees through a gap in a wall into
     free space; a scanner that keeps losing echoes between nearby returns (here 6 % of its

@@ -105,6 +105,13 @@ class GridConfig:
         'its range: the scanner loses echoes on surfaces within range (dark, specular, '
         'grazing), as Hokuyo-class scanners do indoors (8-10 % of their beams in the '
         'leg_tracker recordings, 0-3 % for SICK LMS logs).', min=0.0, max=1.0)
+    lost_echo_free: float = param(
+        100.0, 'On a scanner that loses echoes (lost_echoes), a beam without a return frees '
+        'at most this far (m): its silence may be a dark, specular or grazing surface at any '
+        'range, seen again at the next scan (0: a lost echo frees nothing). A trade-off, off '
+        'by default (100: no_return_free applies alone): fewer false tracks indoors, fewer '
+        'people found where beams that return nothing do look into open space.',
+        min=0.0, max=100.0)
     grazing_incidence: float = param(
         60.0, 'A surface seen at this angle of incidence or more (deg from its normal) at the '
         'edge of a run of beams without a return is taken to continue into the run '
@@ -226,7 +233,7 @@ def cell_centres(cells: int, resolution: float, flat: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------ kernels
 #
 # Settings of the build kernel (a float array: one argument instead of many).
-_RES, _BOUNDS, _LOST, _COS_GRAZE, _GRAZE, _EROSION, _JUMP = range(7)
+_RES, _BOUNDS, _LOST, _COS_GRAZE, _GRAZE, _EROSION, _JUMP, _LOST_FREE = range(8)
 #: Scans over which GridBuilder averages the share of beams that lost their echo (the mean
 #: of all scans so far until there are this many): a property of the scanner and the
 #: surfaces it sees, not of one scan.
@@ -430,6 +437,10 @@ def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free
             k += 1
     if settings[_BOUNDS] != 0.0 and none:
         chords = _loses_echoes(r, idx, range_max, echo, settings[_LOST])
+        if chords and settings[_LOST_FREE] < limit:
+            for i in range(n):
+                if r[i] >= range_max and free[i] > settings[_LOST_FREE]:
+                    free[i] = np.float32(settings[_LOST_FREE])
         _bound_no_returns(r, cos, sin, idx, range_max, chords, settings, free)
     erosion = min(int(settings[_EROSION]), n - 1)
     if erosion > 0:
@@ -613,7 +624,8 @@ class GridBuilder:
         self.settings = np.array([config.resolution, config.no_return_bounds,
                                   config.lost_echoes, cos_graze,
                                   config.grazing_incidence < 90.0, config.free_erosion,
-                                  config.free_erosion_jump], dtype=float)
+                                  config.free_erosion_jump, config.lost_echo_free],
+                                 dtype=float)
 
     @property
     def echo_loss(self) -> float:
