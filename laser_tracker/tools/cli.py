@@ -77,5 +77,15 @@ def _interrupt(signum, frame) -> None:
         raise KeyboardInterrupt
 
 
+def console() -> int:
+    """The ``laser-tracker`` executable: :func:`main`, and then nothing is left to stop. Python
+    takes a few tenths of a second to shut down (its modules and the compiled kernels unload)
+    after restoring the default SIGINT action, so a Ctrl-C then would kill the process by the
+    signal, silently, after its work was done and said; it is ignored instead."""
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return code
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    sys.exit(console())
