@@ -645,7 +645,7 @@ def test_ctrl_c_while_a_replay_starts_stops_it_with_one_line(tmp_path, delay):
     if proc.returncode == 0:       # a loaded machine: the replay was done before the signal
         assert (tmp_path / 'o' / 'summary.json').exists()
     else:
-        assert 'interrupted' in err, (proc.returncode, err)
+        assert proc.returncode == 130 and 'interrupted' in err, (proc.returncode, err)
 
 
 def test_ctrl_c_after_the_work_is_done_is_not_a_death_by_signal(tmp_path):

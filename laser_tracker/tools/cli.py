@@ -8,11 +8,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 
 from laser_tracker.core import jit
 from laser_tracker.errors import LaserTrackerError
+
+#: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
+INTERRUPTED = 130
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -67,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         print(f'laser-tracker {name}: interrupted', file=sys.stderr)
-        return 130
+        return INTERRUPTED
 
 
 def _interrupt(signum, frame) -> None:
@@ -81,9 +85,16 @@ def console() -> int:
     """The ``laser-tracker`` executable: :func:`main`, and then nothing is left to stop. Python
     takes a few tenths of a second to shut down (its modules and the compiled kernels unload)
     after restoring the default SIGINT action, so a Ctrl-C then would kill the process by the
-    signal, silently, after its work was done and said; it is ignored instead."""
+    signal, silently, after its work was done and said; it is ignored instead. An interrupted
+    command ends here with status 130: a KeyboardInterrupt that passed through code run by
+    ``exec`` (dataclasses make their methods so) marks it unhandled inside CPython even when
+    caught, and Python would then end by killing itself with SIGINT at exit."""
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if code == INTERRUPTED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
     return code
 
 
