@@ -266,11 +266,11 @@ def test_stream_rules_classify():
 def test_a_reset_detector_reuses_its_background_and_equals_a_new_one():
     """A reset (time going backwards) clears the static background in place (its memory
     kept) and detects what a new detector detects, to the bit."""
-    from laser_tracker.core.stages import _warm_up_scene
+    from laser_tracker.core.stages import warm_up_scene
 
     def scans(first):
         for k in range(first, first + 8):
-            scan, at, _ = _warm_up_scene(k)
+            scan, at, _ = warm_up_scene(k)
             yield scan, StampedPose(stamp=scan.stamp, pose=np.array(at), motion=np.zeros(3),
                                     motion_covariance=np.zeros((3, 3)),
                                     pose_covariance=np.zeros((3, 3)), quality=PoseQuality())

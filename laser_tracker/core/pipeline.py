@@ -44,7 +44,7 @@ from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig
 from laser_tracker.core.self_mask import SelfMaskConfig
 from laser_tracker.core.stages import (Detection, Detector, EgoMotion, StampedPose, Tracker,
-                                      _warm_up, _warm_up_scene)
+                                      warm_up_once, warm_up_scene)
 from laser_tracker.core.tracking.state import Hypotheses
 
 
@@ -141,7 +141,7 @@ class Pipeline:
         self.detector = Detector(c.grid, c.difference, c.blobs, c.person_detector,
                                  times=self.times if profile else None, segments=c.segments)
         self.tracker = Tracker(c.hypotheses, c.kalman)
-        _warm_up('pipeline', _warm_up_pipeline)
+        warm_up_once('pipeline', _warm_up_pipeline)
 
     # ------------------------------------------------------------------ streams
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list[StepResult]:
@@ -232,6 +232,6 @@ def _warm_up_pipeline() -> None:
     pipeline is thrown away."""
     pipeline = Pipeline()
     for k in range(10):
-        scan, pose, _ = _warm_up_scene(k)
+        scan, pose, _ = warm_up_scene(k)
         pipeline.add_odometry(scan.stamp, pose)
         pipeline.step(scan)

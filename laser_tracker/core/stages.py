@@ -120,7 +120,7 @@ class EgoMotion:
         self.sources: dict[str, int] = {}
         self._restart_pending = False
         self.skipped: str | None = None     # why the last update returned None
-        _warm_up('ego-motion stage', _warm_up_ego_motion)
+        warm_up_once('ego-motion stage', _warm_up_ego_motion)
 
     # ---------------------------------------------------------------- stream
     def add_odometry(self, stamp: float, pose, arrival: float | None = None) -> list:
@@ -265,7 +265,7 @@ class Detector:
         self._load_person_detector(persons or PersonDetectorConfig())
         self._build()
         jit.compiled('detection kernels', _exercise_detection)
-        _warm_up('detection stage', _warm_up_detection)
+        warm_up_once('detection stage', _warm_up_detection)
 
     def _load_person_detector(self, config: PersonDetectorConfig) -> None:
         self.person_config = config
@@ -482,7 +482,7 @@ class Tracker:
         self.rules = StreamRules(self.hypotheses.config.max_gap)
         self.last: FrameResult | None = None
         self.skipped: str | None = None
-        _warm_up('tracking stage', _warm_up_tracking)
+        warm_up_once('tracking stage', _warm_up_tracking)
 
     @property
     def config(self) -> HypothesisConfig:
@@ -623,14 +623,14 @@ def _exercise_detection() -> None:
 _warmed: set[str] = set()
 
 
-def _warm_up(what: str, call) -> None:
+def warm_up_once(what: str, call) -> None:
     """Run ``call`` once per process (and not again while it runs: it makes the stage)."""
     if what not in _warmed:
         _warmed.add(what)
         call()
 
 
-def _warm_up_scene(k: int) -> tuple[Scan, tuple[float, float, float], np.ndarray]:
+def warm_up_scene(k: int) -> tuple[Scan, tuple[float, float, float], np.ndarray]:
     """Scan ``k`` (0.1 s apart) of a 6 x 5 m room seen by a scanner driving 5 cm per scan,
     its pose, and a person's two legs walking across the room (odometry frame)."""
     x = 0.05 * k
@@ -656,7 +656,7 @@ def _warm_up_ego_motion() -> None:
     stage = EgoMotion()
     stage.estimator.rehearses = False          # synthetic scans: not a real first match
     for k in range(10):
-        scan, pose, _ = _warm_up_scene(k)
+        scan, pose, _ = warm_up_scene(k)
         stage.add_odometry(scan.stamp, pose)
         stage.update(scan)
 
@@ -664,7 +664,7 @@ def _warm_up_ego_motion() -> None:
 def _warm_up_detection() -> None:
     detector = Detector()
     for k in range(10):
-        scan, pose, _ = _warm_up_scene(k)
+        scan, pose, _ = warm_up_scene(k)
         detector.update(scan, StampedPose(
             stamp=scan.stamp, pose=np.array(pose), motion=np.zeros(3),
             motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
@@ -674,7 +674,7 @@ def _warm_up_detection() -> None:
 def _warm_up_tracking() -> None:
     tracker = Tracker()
     for k in range(10):
-        _, pose, legs = _warm_up_scene(k)
+        _, pose, legs = warm_up_scene(k)
         person = legs.mean(axis=0, keepdims=True)
         blobs = Blobs(xy=legs, cells=np.array([3, 3]), extent=np.full(2, 0.1),
                       structure=np.full(2, np.nan))
