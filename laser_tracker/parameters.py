@@ -102,6 +102,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'grid.no_return_bounds': False,    # a beam without a return frees no_return_free
         'difference.memory': 0,            # Eq. 1 against the previous grid alone
         'difference.motion_depth': 0.0,    # no platform-motion depth test
+        'difference.footprint': False,     # free before = the beam nearest the cell's centre
         'difference.pose_gate': False,     # every scan reports, whatever its ego-motion quality
         'difference.free_window': 0.0,     # free before = free in the previous grid
         'difference.static_time': 0.0,     # no static background

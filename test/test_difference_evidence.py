@@ -6,7 +6,9 @@ import math
 
 import numpy as np
 
-from laser_tracker.core.difference import DifferenceConfig, StaticBackground
+from laser_tracker.core.difference import (DifferenceConfig, StaticBackground,
+                                           changed_with_history)
+from laser_tracker.core.grid import GridBuilder, GridConfig, GridHistory
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.stages import Detector, StampedPose
 from laser_tracker.core.difference import PoseQuality
@@ -110,3 +112,47 @@ def test_free_window_sees_a_walker_entering_the_previous_scans_shadow():
         return seen[-1].detections.blobs.count
     assert run(0.0) == 0
     assert run(0.3) > 0
+
+
+def _one_degree_scan(stamp, ranges):
+    """181 beams over 180 deg at 1 deg; beam 90 + k points k deg left; 6 m where not set."""
+    r = np.full(181, 6.0)
+    for k, v in ranges.items():
+        r[90 + k] = v
+    return Scan(stamp=stamp, ranges=r, angle_min=-math.pi / 2,
+                angle_increment=math.pi / 180, range_min=0.05, range_max=8.0)
+
+
+def _changed_cell(footprint, pose_now, ranges_now, target):
+    """Whether the cell of the current grid holding world point ``target`` is changed, after
+    one earlier scan at the origin whose beam at 2 deg ended 3.12 m away: in the wedge of
+    the cell x 3.0-3.1, y 0.1-0.2 (its nearest beam, at 3 deg, passed), short of that cell's
+    reach (centre 3.054 m + the 0.1 m margin), in the cell behind it."""
+    builder = GridBuilder(GridConfig(free_erosion=0), keep=3, footprints=footprint)
+    history = GridHistory(builder, 2)
+    history.push(builder.build(_one_degree_scan(0.0, {2: 3.12}), (0.0, 0.0, 0.0)))
+    frame = builder.build(_one_degree_scan(0.1, ranges_now), pose_now)
+    config = DifferenceConfig(memory=0, free_window=0.0, static_time=0.0, motion_depth=0.0,
+                              footprint=footprint)
+    changed = changed_with_history(frame, 0.1, np.asarray(pose_now), history, config)
+    x, y = np.asarray(target) - pose_now[:2]
+    c, s = math.cos(pose_now[2]), math.sin(pose_now[2])
+    cell = np.floor(np.array([c * x + s * y, -s * x + c * y]) / 0.1 + builder.cells / 2)
+    return int(cell[0]) * builder.cells + int(cell[1]) in set(changed.tolist())
+
+
+def test_a_cell_crossed_by_a_beam_that_ended_short_of_it_is_not_seen_free_after_a_move():
+    """The cell x 3.0-3.1, y 0.1-0.2 was FREE by its nearest beam, but another beam that
+    crossed it ended just behind it on something. Seen from 0.1 m back, a return lands in
+    the cell (that something's edge, seen from a new place): a change by the nearest beam
+    alone, none with the footprint while the earlier end is still seen; a change again when
+    it has gone (a leg that swung on), and from a scanner that has not moved."""
+    back = (-0.1, 0.0, 0.0)
+    in_cell = math.hypot(3.15, 0.165)               # from (-0.1, 0): (3.05, 0.165) world
+    still_there = math.hypot(3.218, 0.109)          # the earlier end (3.118, 0.109), again
+    now = {3: in_cell, 2: still_there}
+    assert _changed_cell(False, np.array(back), now, (3.05, 0.165))
+    assert not _changed_cell(True, np.array(back), now, (3.05, 0.165))
+    assert _changed_cell(True, np.array(back), {3: in_cell}, (3.05, 0.165))
+    here = np.zeros(3)                              # the same place: (3.05, 0.16)
+    assert _changed_cell(True, here, {3: math.hypot(3.05, 0.16), 2: 3.12}, (3.05, 0.16))

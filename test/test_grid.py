@@ -412,3 +412,44 @@ def test_gaps_are_bridged_only_for_a_scanner_that_loses_echoes():
     for _ in range(400):                                 # the wall whole again: it forgets
         builder.build(scan_180(whole))
     assert builder.build(scan_180(ranges)).grid[behind] == FREE
+
+
+@pytest.mark.parametrize('angle_min, angle_increment, n_beams, cells, resolution', [
+    (-math.pi / 2, math.pi / 360, 361, 160, 0.1),                        # SICK LMS
+    (-2.0862138271331787, 0.005759586766362190, 726, 160, 0.1),          # Hokuyo-class
+    (math.pi / 2, -math.pi / 180, 181, 100, 0.07),                       # sweeping clockwise
+])
+def test_the_footprint_of_a_cell_is_every_beam_within_its_angular_extent(
+        angle_min, angle_increment, n_beams, cells, resolution):
+    """The ray table's first and last beam of each cell are those whose direction lies
+    within half the angle the cell subtends on either side of its centre's bearing (the
+    cell's own beam at least); without footprints, the cell's own beam alone."""
+    table = ray_table(angle_min, angle_increment, n_beams, cells, resolution, 0.1, True)
+    plain = ray_table(angle_min, angle_increment, n_beams, cells, resolution, 0.1)
+    assert np.array_equal(plain.rays[1], plain.beam) and np.array_equal(plain.rays[2], plain.beam)
+    assert np.array_equal(table.rays[0], table.beam)
+    m = cells + 2 * PAD
+    half = resolution / 2
+    rng = np.random.default_rng(0)
+    cells_with_a_beam = np.flatnonzero(table.beam < n_beams)
+    directions = angle_min + np.arange(n_beams) * angle_increment
+    widths = []
+    for p in rng.choice(cells_with_a_beam, 400, replace=False):
+        x = (p // m - PAD + 0.5 - cells / 2) * resolution
+        y = (p % m - PAD + 0.5 - cells / 2) * resolution
+        if abs(x) <= half and abs(y) <= half:
+            continue
+        centre = math.atan2(y, x)
+        span = max(abs(math.remainder(math.atan2(y + dy, x + dx) - centre, 2 * math.pi))
+                   for dx in (-half, half) for dy in (-half, half))
+        apart = np.abs(np.remainder(directions - centre + math.pi, 2 * math.pi) - math.pi)
+        b = table.beam[p]
+        for inside in (np.flatnonzero(apart <= span - 1e-9),   # a beam through a corner
+                       np.flatnonzero(apart <= span + 1e-9)):  # may go either way
+            low, high = min(inside.min(initial=b), b), max(inside.max(initial=b), b)
+            if table.rays[1, p] == low and table.rays[2, p] == high:
+                break
+        else:
+            raise AssertionError(f'cell {p}: beams {table.rays[1:, p]}, not {low}-{high}')
+        widths.append(table.rays[2, p] - table.rays[1, p])
+    assert max(widths) > 2                              # near cells span several beams

@@ -70,8 +70,8 @@ from laser_tracker.core import jit
 from laser_tracker.core.egomotion import SOURCE_ICP, SOURCE_INIT, SOURCE_ODOMETRY, \
     SOURCE_PARTIAL
 from laser_tracker.core.grid import (FREE, NEIGHBOURS_I, NEIGHBOURS_J, OCCUPIED, PAD, UNKNOWN,
-                                     GridHistory, covering_beam, history_motions, index_map,
-                                     lookup_grid, mapped_cell)
+                                     GridHistory, covering_beam, history_motions,
+                                     index_map, lookup_grid, mapped_cell)
 
 #: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` and
 #: ``constant_velocity`` (coasting: no match accepted) and ``none`` are not.
@@ -128,6 +128,19 @@ class DifferenceConfig:
         '(parallax, resampling, registration error growing with the turn), a moving object '
         'enters space seen free far behind it. A stationary scanner is not affected. '
         '0 = paper (any FREE cell).', min=0.0, max=10.0)
+    footprint: bool = param(
+        True, 'Seen from a scanner that has moved since by the beams\' spacing at the cell or '
+        'more, an earlier grid\'s FREE cell counts as free only if no beam that crossed it '
+        '(its angular extent seen from the scanner, not only the beam nearest its centre) '
+        'ended short of freeing it (in it, before it, or within grid.free_margin beyond its '
+        'centre) on something the current scan still sees within a cell of that end, outside '
+        'the cell itself. An object\'s edge lies somewhere between two beams, and a surface met '
+        'at an angle may cross a cell\'s corner: the beam through the centre passes, yet the '
+        'object fills part of the cell, and from another viewpoint its points fall there (door '
+        'frames, shelf ends, oblique walls that the robot drives past). A scanner that has not '
+        'moved samples them the same way every scan; the end of a leg that has swung on is '
+        'gone. With free_neighbourhood, the neighbours count by their nearest beam. false = '
+        'the beam nearest the cell\'s centre (paper).')
     pose_gate: bool = param(
         True, 'A scan whose ego-motion is not trusted reports no changes (no blobs; the '
         'tracker coasts; the grid history is kept): ICP was refused and odometry used, or '
@@ -237,7 +250,7 @@ def difference_map(grid: np.ndarray, previous_in_current: np.ndarray) -> np.ndar
 # ------------------------------------------------------------------------------ kernels
 #
 # Settings of the difference kernel (a float array: one argument instead of many).
-_WINDOW, _MEMORY, _NEIGHBOURHOOD, _MOTION_DEPTH, _RES = range(5)
+_WINDOW, _MEMORY, _NEIGHBOURHOOD, _MOTION_DEPTH, _RES, _FOOTPRINT = range(6)
 # Settings of the static background: 1 / resolution, static_time, static_occupied, bits.
 _INV, _TAU, _THRESHOLD, _BITS = range(4)
 @jit.inline
@@ -254,8 +267,49 @@ def _displaced(i, j, x, y, theta, cells, resolution, motion_depth):
 
 
 @jit.inline
-def _earlier(stack, lazy, free, beam, reach, meta, buffer, maps, k, i, j, cells, resolution,
-             around, motion_depth):
+def _shaded(free, rays, reach, meta, buffer, p, maps, k, stack, current, here, cells,
+            resolution):
+    """Whether a beam of the earlier grid in ``buffer`` that crossed its cell ``p`` (``rays``:
+    the ray table's beams of each cell) ended in it or before it, rather than going on
+    beyond, on something the current grid (buffer ``current``, -1: none) still sees within a
+    cell, other than in the cell being judged (``here``, padded flat index of the current
+    grid): part of the cell may then have been that thing, seen now from another place (the
+    end of a door frame). An end that has gone since (a leg that swung on) does not count;
+    a free range of 0 (NaN, below ``range_min``) says nothing."""
+    need = reach[p]
+    x, y, th = maps[k, 4], maps[k, 5], maps[k, 6]   # the current scanner pose there
+    c, s = math.cos(th), math.sin(th)
+    m = cells + 2 * PAD
+    half = cells / 2.0
+    shaded = False
+    for b in range(rays[1, p], rays[2, p] + 1):
+        f = np.float64(free[buffer, b])
+        if not (f > 0.0 and not need < f):
+            continue
+        if current < 0:
+            shaded = True
+            break
+        a = meta[buffer, 4] + b * meta[buffer, 5]
+        ex, ey = f * math.cos(a) - x, f * math.sin(a) - y
+        u = math.floor((c * ex + s * ey) / resolution + half)
+        w = math.floor((-s * ex + c * ey) / resolution + half)
+        if u < -1 or u > cells or w < -1 or w > cells:
+            continue                             # outside the current grid
+        q = (int(u) + PAD) * m + int(w) + PAD
+        for n in range(9):
+            r = q + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
+            if r != here and stack[current, r] == OCCUPIED:
+                shaded = True
+                break
+        if shaded:
+            break
+    jit.alive((free, rays, reach, meta, maps, stack))   # one exit: no reference counting
+    return shaded
+
+
+@jit.inline
+def _earlier(stack, lazy, free, rays, reach, meta, buffer, maps, k, i, j, cells, resolution,
+             around, motion_depth, footprint, current):
     """The value of the earlier grid in ``buffer`` (``maps[k]``: its index map, then the
     current scanner pose in its frame) at current cell ``(i, j)``: with ``around`` 5 or 9
     (``free_neighbourhood``) FREE only when the mapped cell's 4- or 8-neighbours are FREE
@@ -266,13 +320,24 @@ def _earlier(stack, lazy, free, beam, reach, meta, buffer, maps, k, i, j, cells,
     m = cells + 2 * PAD
     p = mapped_cell(i, j, maps[k, 0], maps[k, 1], maps[k, 2], maps[k, 3], cells)
     v = stack[buffer, p]
-    if v == UNKNOWN and lazy[buffer] and reach[p] < free[buffer, beam[p]]:
+    if v == UNKNOWN and lazy[buffer] and reach[p] < free[buffer, rays[0, p]]:
         v = FREE
+    if footprint and v == FREE:
+        # only once the scanner has moved by the beams' spacing at the cell (the cell itself:
+        # free_neighbourhood's neighbours by their nearest beam; a second call of the inlined
+        # check, in that loop, would cost every cell a little)
+        qx, qy, moved = _displaced(i, j, maps[k, 4], maps[k, 5], maps[k, 6], cells,
+                                   resolution, 1.0)
+        here = (int(i) + PAD) * m + int(j) + PAD
+        if moved >= math.hypot(qx, qy) * abs(meta[buffer, 5]) and _shaded(
+                free, rays, reach, meta, buffer, p, maps, k, stack, current, here, cells,
+                resolution):
+            v = UNKNOWN
     if v == FREE:
         for n in range(1, around):
             q = p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n]
             if not (stack[buffer, q] == FREE or (stack[buffer, q] == UNKNOWN and lazy[buffer]
-                                                 and reach[q] < free[buffer, beam[q]])):
+                                                 and reach[q] < free[buffer, rays[0, q]])):
                 v = UNKNOWN
                 break
     if v == FREE and motion_depth > 0.0:
@@ -281,7 +346,7 @@ def _earlier(stack, lazy, free, beam, reach, meta, buffer, maps, k, i, j, cells,
         b = covering_beam(qx, qy, meta[buffer, 4], meta[buffer, 5], meta[buffer, 6])
         if not (b >= 0 and np.float64(free[buffer, b]) - math.hypot(qx, qy) >= need):
             v = UNKNOWN
-    jit.alive((stack, lazy, free, beam, reach, meta, maps))
+    jit.alive((stack, lazy, free, rays, reach, meta, maps))
     return v
 
 
@@ -311,8 +376,8 @@ def _to_world(pose, x, y):
 
 
 @jit.kernel
-def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta, order, pose,
-             stamp, settings, cells, key, count, last, background):
+def _changed(frame_ij, frame_flat, points, stack, lazy, free, rays, reach, meta, order, pose,
+             stamp, settings, cells, current, key, count, last, background):
     """Equation 1 with memory and free-space evidence at the cells occupied now: the sorted
     unique flat indices of the changed cells (see :func:`changed_with_history`), without
     those on static background (``background``: its settings, empty when it is off)."""
@@ -325,6 +390,7 @@ def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta,
     depth = max(n_free, n_occ)
     res = settings[_RES]
     motion_depth = settings[_MOTION_DEPTH]
+    footprint = settings[_FOOTPRINT] != 0.0
     motions = history_motions(meta, order[:depth], pose)
     maps = np.empty((depth, 7))                 # index map, then the motion
     for k in range(depth):
@@ -343,9 +409,10 @@ def _changed(frame_ij, frame_flat, points, stack, lazy, free, beam, reach, meta,
             # were occupied in the previous grid: one read).
             cell_changed = False
             for k in range(depth):
-                v = _earlier(stack, lazy, free, beam, reach, meta, order[k], maps, k,
+                v = _earlier(stack, lazy, free, rays, reach, meta, order[k], maps, k,
                              frame_ij[r, 0], frame_ij[r, 1], cells, res,
-                             around if k == 0 else 1, motion_depth if k < n_free else 0.0)
+                             around if k == 0 else 1, motion_depth if k < n_free else 0.0,
+                             footprint, current)
                 if k < n_occ and v == OCCUPIED:
                     cell_changed = False
                     break
@@ -403,9 +470,9 @@ def _left_empty(x, y, pose_then, current, free, meta, silent, radius, motion_dep
 
 
 @jit.kernel
-def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, meta, order,
-            cells, resolution, motion_depth, key, count, last, background, current, silent,
-            recent, walked_out):
+def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, rays, reach, meta, order,
+            cells, resolution, motion_depth, footprint, key, count, last, background,
+            current, silent, recent, walked_out):
     """People (``persons`` at their ``legs``, rows of ``leg_xy``, -1: none; the scanner frame
     at ``pose``) in the odometry frame with, per person: were the places of all its legs seen
     FREE in one of the grids ``order`` and are they not static background (someone who
@@ -454,9 +521,9 @@ def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, beam, reach, 
             seen_free = False
             if inside and not static:
                 for q in range(order.size):
-                    seen_free |= _earlier(stack, lazy, free, beam, reach, meta, order[q], maps,
+                    seen_free |= _earlier(stack, lazy, free, rays, reach, meta, order[q], maps,
                                           q, ij[0], ij[1], cells, resolution, 1,
-                                          motion_depth) == FREE
+                                          motion_depth, footprint, current) == FREE
             walked[r] &= seen_free
             standing[r] &= static
     window, radius, speed = walked_out[0], walked_out[1], walked_out[2]
@@ -564,19 +631,19 @@ def changed_with_history(frame, stamp: float, pose, history: GridHistory,
     return _changed(frame.ij, frame.flat, frame.points, *history.builder.arrays[:5],
                     history.builder.meta, history.order, np.asarray(pose, dtype=float),
                     float(stamp), _settings(config, history.builder.config.resolution),
-                    history.builder.cells, *bg)
+                    history.builder.cells, frame.index, *bg)
 
 
 def people_in_odometry(people, pose, stamp: float, history: GridHistory,
                        background: StaticBackground | None, motion_depth: float,
                        recent: np.ndarray | None = None, walked_out=(0.0, 0.0, 0.0),
-                       silent: np.ndarray | None = None) -> tuple:
+                       silent: np.ndarray | None = None, footprint: bool = False) -> tuple:
     """``people`` (``person_detector.PersonDetections`` of the scan at ``pose``, whose grid
     is ``history[0]``) in the odometry frame: (positions, walked in or out, on static
     background, leg spread) per person (see :func:`_people`; ``recent``: earlier detections,
     rows x, y, stamp, scanner pose; ``walked_out``: window, radius, speed, window 0 = off;
-    ``silent``: the scan's beams without a return, :meth:`Scan.silent`, default none) and
-    the positions of their clusters."""
+    ``silent``: the scan's beams without a return, :meth:`Scan.silent`, default none;
+    ``footprint``: ``DifferenceConfig.footprint``) and the positions of their clusters."""
     b = history.builder
     bg = background.arrays if background is not None else _NO_BACKGROUND
     current = int(history.order[0]) if len(history) else -1
@@ -585,7 +652,7 @@ def people_in_odometry(people, pose, stamp: float, history: GridHistory,
     return _people(people.xy, people.legs, np.ascontiguousarray(people.leg_xy, dtype=float),
                    np.asarray(pose, dtype=float), float(stamp), *b.arrays[:5], b.meta,
                    history.order[1:], b.cells, float(b.config.resolution),
-                   float(motion_depth), *bg, current, silent,
+                   float(motion_depth), bool(footprint), *bg, current, silent,
                    _NO_RECENT if recent is None else recent,
                    np.asarray(walked_out, dtype=float))
 
@@ -594,7 +661,7 @@ def people_in_odometry(people, pose, stamp: float, history: GridHistory,
 def _settings(config: DifferenceConfig, resolution: float) -> np.ndarray:
     """The kernels' settings of ``config`` (one array per configuration)."""
     return np.array([config.free_window, config.memory, config.free_neighbourhood,
-                     config.motion_depth, resolution])
+                     config.motion_depth, resolution, config.footprint])
 
 
 def deep_free(ij: np.ndarray, previous, motion, resolution: float, cells: int,

@@ -139,11 +139,14 @@ class RayTable:
     beam: np.ndarray    # (n*n,) intp
     reach: np.ndarray   # (n*n,) float32: cell-centre range + free margin
     n_beams: int
+    #: (3, n*n) intp: ``beam``, then the first and last beam crossing the cell (its
+    #: footprint; both ``beam`` when the footprint is not used): what the kernels read.
+    rays: np.ndarray
 
 
 @lru_cache(maxsize=8)
 def ray_table(angle_min: float, angle_increment: float, n_beams: int, cells: int,
-              resolution: float, free_margin: float) -> RayTable:
+              resolution: float, free_margin: float, footprint: bool = False) -> RayTable:
     """Cached ray table for one beam geometry and one grid geometry.
 
     Indexed by the flat index of the *padded* grid (``cells + 2`` per side, see
@@ -155,12 +158,14 @@ def ray_table(angle_min: float, angle_increment: float, n_beams: int, cells: int
     """
     bearing = cell_bearings(cells, resolution)
     inc = float(angle_increment)
-    beam = np.empty(bearing.size, np.intp)
+    rays = np.empty((3, bearing.size), np.intp)
     _cell_beams(bearing, float(angle_min), math.copysign(1.0, inc), abs(inc),
-                2.0 * math.pi / abs(inc), n_beams, cells + 2 * PAD, beam)
-    beam.setflags(write=False)
+                2.0 * math.pi / abs(inc), n_beams, cells + 2 * PAD, rays[0],
+                cell_spans(cells, resolution) if footprint else _NO_SPAN, rays[1], rays[2])
+    rays.setflags(write=False)
+    beam = rays[0]
     return RayTable(beam=beam, reach=cell_reach(cells, resolution, free_margin),
-                    n_beams=n_beams)
+                    n_beams=n_beams, rays=rays)
 
 
 def _cell_centres_padded(cells: int, resolution: float) -> tuple[np.ndarray, np.ndarray]:
@@ -180,6 +185,25 @@ def cell_bearings(cells: int, resolution: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=4)
+def cell_spans(cells: int, resolution: float) -> np.ndarray:
+    """Half the angle (rad) under which the scanner sees every cell of the padded grid
+    (flat): the largest angle between its centre's bearing and a corner's (pi for the
+    cells at the scanner)."""
+    cx, cy = _cell_centres_padded(cells, resolution)
+    centre = np.arctan2(cy, cx)
+    half = resolution / 2.0
+    span = np.zeros_like(centre)
+    for dx, dy in ((-half, -half), (-half, half), (half, -half), (half, half)):
+        off = np.arctan2(cy + dy, cx + dx) - centre
+        span = np.maximum(span, np.abs((off + np.pi) % (2.0 * np.pi) - np.pi))
+    inside = (np.abs(cx) <= half) & (np.abs(cy) <= half)
+    span[inside] = np.pi
+    span = span.ravel()
+    span.setflags(write=False)
+    return span
+
+
+@lru_cache(maxsize=4)
 def cell_reach(cells: int, resolution: float, free_margin: float) -> np.ndarray:
     """The range (m, float32) a beam must reach to free each cell of the padded grid (flat):
     the cell centre's range plus ``free_margin``; infinite on the border (never FREE)."""
@@ -194,18 +218,23 @@ def cell_reach(cells: int, resolution: float, free_margin: float) -> np.ndarray:
 
 
 @jit.kernel
-def _cell_beams(bearing, angle_min, sign, step, turn, n_beams, m, beam):
+def _cell_beams(bearing, angle_min, sign, step, turn, n_beams, m, beam, span, lo, hi):
     """Into ``beam``: for every cell of the padded grid (``m`` per side; ``bearing``: of its
     centre), the beam whose direction passes nearest it, ``n_beams`` when none does or on
     the border. The beams' directions are ``angle_min + i * sign * step``; ``turn`` is
     ``2 pi / step``. Each cell's arithmetic is numpy's (``np.mod``'s floored remainder,
-    ``np.rint``), so that the table is the same to the bit whichever way it is made."""
+    ``np.rint``), so that the table is the same to the bit whichever way it is made.
+    Into ``lo`` and ``hi``: the first and the last beam whose direction lies within
+    ``span`` (rad, per cell; empty: none) of the cell's bearing, its own beam at least,
+    clipped to the scan (a 360 deg scan's seam is not crossed)."""
     two_pi = 2.0 * math.pi
     last = n_beams - 1
+    footprints = span.size > 0
     for p in range(bearing.size):
         i, j = p // m, p % m
         if i < PAD or i >= m - PAD or j < PAD or j >= m - PAD:
             beam[p] = n_beams
+            lo[p], hi[p] = n_beams, n_beams
             continue
         # np.mod(a, 2 pi): fmod, moved into [0, 2 pi) as numpy does (npy_divmod)
         a = (bearing[p] - angle_min) * sign
@@ -220,7 +249,13 @@ def _cell_beams(bearing, angle_min, sign, step, turn, n_beams, m, beam):
         wrapped = np.rint(k - turn)      # bearings just before angle_min
         if b > last and wrapped >= 0 and wrapped <= last:
             b = wrapped
+            k -= turn
         beam[p] = int(b) if b >= 0 and b <= last else n_beams
+        lo[p], hi[p] = beam[p], beam[p]
+        if footprints and beam[p] < n_beams:
+            w = span[p] / step
+            lo[p] = min(max(int(math.ceil(k - w)), 0), beam[p])
+            hi[p] = max(min(int(math.floor(k + w)), last), beam[p])
 
 
 def cell_centres(cells: int, resolution: float, flat: np.ndarray) -> np.ndarray:
@@ -480,23 +515,23 @@ def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free
 
 
 @jit.kernel
-def _render(occupied, free, beam, reach):
+def _render(occupied, free, rays, reach):
     """The whole grid into ``occupied`` (a buffer with its OCCUPIED cells marked): FREE
     where the cell's beam freed it."""
     for p in range(occupied.size):
-        if occupied[p] == UNKNOWN and reach[p] < free[beam[p]]:
+        if occupied[p] == UNKNOWN and reach[p] < free[rays[0, p]]:
             occupied[p] = FREE
 
 
 @jit.inline
-def cell_value(stack, lazy, free, beam, reach, k, p):
+def cell_value(stack, lazy, free, rays, reach, k, p):
     """The value of cell ``p`` (padded flat index) of the grid in buffer ``k``: its mark
     (OCCUPIED; or any value once rendered), else FREE when the ray table says its beam
     freed it (``lazy[k]``: the buffer holds only the marks)."""
     v = stack[k, p]
-    if v == UNKNOWN and lazy[k] and reach[p] < free[k, beam[p]]:
+    if v == UNKNOWN and lazy[k] and reach[p] < free[k, rays[0, p]]:
         v = FREE
-    jit.alive((stack, lazy, free, beam, reach))       # one exit: no reference counting
+    jit.alive((stack, lazy, free, rays, reach))       # one exit: no reference counting
     return v
 
 
@@ -599,9 +634,12 @@ class GridBuilder:
     scan) and keeps the last ``keep`` of them with each one's scanner pose and stamp, for
     the difference map. The kernels read them through :attr:`arrays`."""
 
-    def __init__(self, config: GridConfig, keep: int = 2):
-        """``keep``: how many grids stay valid (the current one and ``keep - 1`` before it)."""
+    def __init__(self, config: GridConfig, keep: int = 2, footprints: bool = False):
+        """``keep``: how many grids stay valid (the current one and ``keep - 1`` before it);
+        ``footprints``: the ray tables list the beams crossing each cell (for
+        ``DifferenceConfig.footprint``)."""
         self.config = config
+        self.footprints = footprints
         self.cells = config.cells
         m = self.cells + 2 * PAD
         keep = max(2, keep)
@@ -619,6 +657,8 @@ class GridBuilder:
         # what the ray tables of this grid share, made now rather than at the first scan
         cell_bearings(self.cells, float(config.resolution))
         cell_reach(self.cells, float(config.resolution), float(config.free_margin))
+        if footprints:
+            cell_spans(self.cells, float(config.resolution))
         self.echo = np.zeros(2)                      # share of echoes lost: mean, scans
         cos_graze = math.cos(math.radians(config.grazing_incidence))
         self.settings = np.array([config.resolution, config.no_return_bounds,
@@ -636,10 +676,10 @@ class GridBuilder:
     @property
     def arrays(self) -> tuple:
         """What the kernels read: the buffers (flat), which of them hold marks only, the
-        free ranges, the ray table (beam, reach) and the per-buffer ``meta``."""
+        free ranges, the ray table (rays, reach) and the per-buffer ``meta``."""
         table = self._table
-        beam, reach = (table.beam, table.reach) if table is not None else (_NO_BEAM, _NO_REACH)
-        return self._flat_stack, self.lazy, self.free, beam, reach, self.meta
+        rays, reach = (table.rays, table.reach) if table is not None else (_NO_RAYS, _NO_REACH)
+        return self._flat_stack, self.lazy, self.free, rays, reach, self.meta
 
     def table(self, scan: Scan) -> RayTable:
         key = (scan.angle_min, scan.angle_increment, scan.n_beams)
@@ -649,14 +689,14 @@ class GridBuilder:
             c = self.config
             self._table = ray_table(float(scan.angle_min), float(scan.angle_increment),
                                     scan.n_beams, self.cells, float(c.resolution),
-                                    float(c.free_margin))
+                                    float(c.free_margin), self.footprints)
             self._table_key = key
         return self._table
 
     def render(self, index: int) -> None:
         """Write the whole grid of buffer ``index`` (FREE cells too)."""
         if self.lazy[index]:
-            _render(self._flat_stack[index], self.free[index], self._table.beam,
+            _render(self._flat_stack[index], self.free[index], self._table.rays,
                     self._table.reach)
             self.lazy[index] = False
             self._marks[index] = None
@@ -738,7 +778,7 @@ NEIGHBOURS_J = np.array([0, 0, 0, 1, -1, 1, -1, 1, -1])
 
 
 @jit.kernel
-def lookup(stack, lazy, free, beam, reach, buffers, motions, ij, cells, resolution,
+def lookup(stack, lazy, free, rays, reach, buffers, motions, ij, cells, resolution,
            neighbourhood):
     """(K, c, q) uint8: the grid in buffer ``buffers[k]`` brought into the current frame by
     ``motions[k]`` (nearest cell, as :func:`transform_grid`), at the current cells ``ij``
@@ -753,7 +793,7 @@ def lookup(stack, lazy, free, beam, reach, buffers, motions, ij, cells, resoluti
         for r in range(ij.shape[0]):
             p = mapped_cell(ij[r, 0], ij[r, 1], c, s, u0, v0, cells)
             for n in range(q):
-                out[k, r, n] = cell_value(stack, lazy, free, beam, reach, buffers[k],
+                out[k, r, n] = cell_value(stack, lazy, free, rays, reach, buffers[k],
                                           p + NEIGHBOURS_I[n] * m + NEIGHBOURS_J[n])
     return out
 
@@ -764,7 +804,7 @@ def lookup_grid(padded: np.ndarray, motion, resolution: float, ij: np.ndarray,
     m = padded.shape[0]
     motions = np.asarray(motion, dtype=float).reshape(1, 3)
     return lookup(np.ascontiguousarray(padded).reshape(1, m * m), _NOT_LAZY, _NO_FREE,
-                  _NO_BEAM, _NO_REACH, _FIRST, motions, np.asarray(ij, dtype=float),
+                  _NO_RAYS, _NO_REACH, _FIRST, motions, np.asarray(ij, dtype=float),
                   m - 2 * PAD, float(resolution), neighbourhood)[0]
 
 
@@ -789,7 +829,8 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 # Stand-ins for a whole grid's lookups (no ray table), typed as the builder's arrays.
 #: ``_build``'s ``marks`` of a buffer without (clear all of it); writable, as marks are.
 _NO_MARKS = np.zeros(0, np.intp)
-_NO_BEAM = _read_only(np.zeros(1, np.intp))
+_NO_RAYS = _read_only(np.zeros((3, 1), np.intp))
+_NO_SPAN = _read_only(np.zeros(0))
 _NO_REACH = _read_only(np.full(1, np.inf, np.float32))
 _NO_FREE = np.zeros((1, 1), np.float32)
 _NOT_LAZY = np.zeros(1, np.bool_)

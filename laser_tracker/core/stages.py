@@ -280,7 +280,8 @@ class Detector:
     def _build(self) -> None:
         d = self.difference_config
         self.depth = max(d.max_history, d.memory + 1)
-        self.builder = GridBuilder(self.grid_config, keep=self.depth + 1)
+        self.builder = GridBuilder(self.grid_config, keep=self.depth + 1,
+                                   footprints=d.footprint)
         self.background: StaticBackground | None = None      # made anew for a new geometry
         self.reset()
 
@@ -383,7 +384,7 @@ class Detector:
         xy, free, static, spread, segments = \
             people_in_odometry(people, pose, stamp, self.history, self.background,
                                c.motion_depth, self.recent_people, walked_out,
-                               scan.silent() if ask else _NO_BEAMS)
+                               scan.silent() if ask else _NO_BEAMS, c.footprint)
         if self.person_detector is not None:
             d.people = People(xy=xy, confidence=people.confidence, free=free, spread=spread,
                               static=static)
@@ -609,7 +610,7 @@ def _exercise_detection() -> None:
     people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background,
                        detector.difference_config.motion_depth,
                        np.array([[0.5, 0.5, 0.0, 0.0, 0.0, 0.0]]), (1.0, 0.3, 3.0),
-                       scan.silent())
+                       scan.silent(), detector.difference_config.footprint)
 
 
 # ------------------------------------------------------------------------------- warm-up

@@ -43,16 +43,22 @@ def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
     """Not a hypothesis (other than a person) that moves with the scanner: its velocity
     within ``ride_along_speed`` of the velocity of the point of the scanner's rigid frame
     where it is, while the scanner moves at least ``ride_along_min_speed`` (glass or a mirror
-    at normal incidence, the robot's own parts)."""
+    at normal incidence, the robot's own parts); nor one that has, on average since it
+    started, moved that slowly in the scanner's frame and at least ``ride_along_min_speed``
+    in the world (the filter's velocity lags behind a part of the robot that turns with
+    it)."""
     h = candidates
+    age = np.maximum(frame.stamp - h.born, 1e-9)
+    local = np.hypot(*(frame.scanner.to_scanner(h.position) - h.start_local).T)
+    world = np.hypot(*(h.position - h.start).T)
+    riding = (local < c.ride_along_speed * age) & (world >= c.ride_along_min_speed * age)
     motion = frame.scanner.motion(frame.stamp)
-    if motion is None or motion[2] < c.ride_along_min_speed:
-        return np.ones(len(h), bool)
-    velocity, turn, _ = motion
-    arm = h.position - frame.scanner.pose[:2]
-    rigid = velocity + turn * np.column_stack((-arm[:, 1], arm[:, 0]))
-    relative = np.hypot(*(h.velocity - rigid).T)
-    return ~((relative < c.ride_along_speed) & ~h.is_person(c.person_kind_samples))
+    if motion is not None and motion[2] >= c.ride_along_min_speed:
+        velocity, turn, _ = motion
+        arm = h.position - frame.scanner.pose[:2]
+        rigid = velocity + turn * np.column_stack((-arm[:, 1], arm[:, 0]))
+        riding |= np.hypot(*(h.velocity - rigid).T) < c.ride_along_speed
+    return ~(riding & ~h.is_person(c.person_kind_samples))
 
 
 def old_enough(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
