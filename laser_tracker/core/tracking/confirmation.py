@@ -17,6 +17,13 @@ from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import MOTION, PERSON, Hypotheses
 
 
+def _travel(h: Hypotheses, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """How far (m) each hypothesis is from where it started: in the world and in the
+    scanner's frame."""
+    return (np.hypot(*(h.position - h.start).T),
+            np.hypot(*(frame.scanner.to_scanner(h.position) - h.start_local).T))
+
+
 def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
     """A hypothesis started by a person detection standing where the scans always saw
     something (chair and table legs look like legs) only once it has moved
@@ -28,9 +35,8 @@ def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np
     sees left empty (walked out) or legs whose separation swings (``gait_spread``) made it
     ``PERSON_WALKED_IN``: no restriction."""
     h = candidates
-    start = ((h.position - h.start) ** 2).sum(axis=1)
-    local = ((frame.scanner.to_scanner(h.position) - h.start_local) ** 2).sum(axis=1)
-    out = (h.origin != PERSON) | (np.minimum(start, local) >= c.person_min_travel ** 2)
+    world, local = _travel(h, frame)
+    out = (h.origin != PERSON) | (np.minimum(world, local) >= c.person_min_travel)
     if c.person_confirm_samples > 0:
         out |= h.person_samples >= c.person_confirm_samples
     if c.person_confirm_pairs > 0:
@@ -49,8 +55,7 @@ def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
     it)."""
     h = candidates
     age = np.maximum(frame.stamp - h.born, 1e-9)
-    local = np.hypot(*(frame.scanner.to_scanner(h.position) - h.start_local).T)
-    world = np.hypot(*(h.position - h.start).T)
+    world, local = _travel(h, frame)
     riding = (local < c.ride_along_speed * age) & (world >= c.ride_along_min_speed * age)
     motion = frame.scanner.motion(frame.stamp)
     if motion is not None and motion[2] >= c.ride_along_min_speed:
