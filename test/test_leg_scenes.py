@@ -11,7 +11,8 @@ from laser_tracker.conversions import header
 from laser_tracker.tools import leg_scenes
 from laser_tracker.tools.annotations import read_annotations
 from laser_tracker.tools.bag import FACTORY, BagWriter
-from laser_tracker.tools.bench_real import pooled
+from laser_tracker.tools.bench_real import headline, pooled, rewrite_scans
+from laser_tracker.tools.bag import read_scans
 from laser_tracker.tools.data import real_recording
 from laser_tracker.tools.evaluate import evaluate_recording
 
@@ -79,9 +80,50 @@ def test_a_positive_recording_becomes_an_annotated_scene(tmp_path):
     assert len(ann) == 12 and ann.ids() == [0]
     assert np.allclose(ann.x, 1.0 + 0.1 * np.arange(12)) and np.allclose(ann.y, 0.0)
     assert np.allclose(ann.scans.stamps, ann.scans.receive_ns * 1e-9)   # header stamps
-    from laser_tracker.tools.bag import read_scans
     scan = next(iter(read_scans(tmp_path / 'scene', '/scan')))
     assert np.isinf(scan.ranges).sum() == scan.ranges.size - (np.abs(scan.angles) < 0.15).sum()
+
+
+def test_a_scene_as_a_scanner_with_half_the_beams_or_half_the_rate(tmp_path):
+    src = tmp_path / 'positive'
+    _positive_bag(src)
+    full = list(read_scans(src, '/training_scan'))
+    info = leg_scenes.write_scene(src, tmp_path / 'beams', beam_step=2)
+    assert info['scans'] == 12 and info['legs'] == 24
+    sparse = list(read_scans(tmp_path / 'beams', '/scan'))
+    assert sparse[0].n_beams == 91
+    assert np.allclose(sparse[0].angles, full[0].angles[::2])
+    assert np.array_equal(sparse[3].ranges, full[3].ranges[::2].astype(np.float32))
+    info = leg_scenes.write_scene(src, tmp_path / 'rate', scan_step=2)
+    assert info['scans'] == 6 and info['annotations'] == 6 and info['legs'] == 12
+    ann = read_annotations(tmp_path / 'rate', scan_topic='/scan')
+    # the kept scans, and their people with the ids of the whole recording
+    assert np.allclose(ann.scans.stamps, 100.0 + 2 * PERIOD * np.arange(6), atol=1e-6)
+    assert ann.ids() == [0] and np.allclose(ann.x, 1.0 + 0.2 * np.arange(6))
+
+
+def test_a_recording_rewritten_as_another_scanner_keeps_its_topics_apart(tmp_path):
+    src = tmp_path / 'two'
+    angles = np.linspace(-2.0, 2.0, 9)
+    with BagWriter(src) as bag:
+        for k in range(6):
+            for topic, r0 in (('/a', 1.0), ('/b', 2.0)):
+                t = 10.0 + k * 0.1 + (0.01 if topic == '/b' else 0.0)
+                r = np.full(angles.size, r0 + k)
+                r[0] = 0.0                           # a no-return code
+                bag.write(topic, FACTORY.make(
+                    'sensor_msgs/msg/LaserScan', header=header(FACTORY, t, 'laser'),
+                    angle_min=-2.0, angle_max=2.0, angle_increment=0.5, time_increment=0.001,
+                    scan_time=0.1, range_min=0.05, range_max=30.0,
+                    ranges=FACTORY.float32_array(r), intensities=FACTORY.float32_array(
+                        np.zeros(0))), t)
+    rewrite_scans(src, tmp_path / 'out', ['/a', '/b'], beam_step=2, scan_step=3)
+    for topic, r0 in (('/a', 1.0), ('/b', 2.0)):
+        scans = list(read_scans(tmp_path / 'out', topic))
+        assert [s.ranges[1] for s in scans] == [r0, r0 + 3]          # scans 0 and 3
+        assert all(s.n_beams == 5 and s.angle_increment == 1.0 for s in scans)
+        assert all(np.isposinf(s.ranges[0]) for s in scans)         # REP 117
+        assert scans[0].time_increment == pytest.approx(0.002)
 
 
 def test_tracks_outside_the_labelled_area_count_only_on_a_labelled_person(tmp_path):
@@ -120,6 +162,15 @@ def test_pooled_rows_add_the_counts_before_the_ratios():
     assert row['walking_recall'] == pytest.approx(0.9)
 
 
+def test_pooled_scanners_with_nobody_in_view_add_their_false_tracks():
+    parts = [dict(scans=435, confirmed=c, false=c, minutes=0.97, replay_s=1.0)
+             for c in (1, 0, 3)]
+    row = pooled(parts)
+    assert row['false'] == 4 and row['false_by_part'] == [1, 0, 3]
+    assert row['false_per_minute'] == pytest.approx(4 / 2.91)
+    assert headline(row) == '4 false (1.37/min; 1 / 0 / 3)'
+
+
 @pytest.mark.skipif(not leg_scenes.positive_recordings(),
                     reason='the leg_tracker training recordings are not under '
                            '$LASER_TRACKER_DATA (README.md, "Data")')
@@ -137,3 +188,27 @@ def test_a_real_positive_recording_becomes_a_scene_of_its_labelled_legs(tmp_path
             assert np.hypot(*(spots - (x, y)).T).min() < 1e-6
     x0, x1, y0, y1 = info['area']
     assert x0 <= ann.x.min() and ann.x.max() <= x1 and y0 <= ann.y.min() and ann.y.max() <= y1
+
+
+@pytest.mark.skipif(not real_recording('leg_tracker/training/negative_2.bag').exists(),
+                    reason='negative_2.bag is not under $LASER_TRACKER_DATA (README.md, "Data")')
+def test_bench_real_replays_negative_2_as_a_scanner_at_half_the_rate(tmp_path):
+    import argparse
+    import json
+
+    from laser_tracker.tools import bench_real
+    args = argparse.Namespace(only=['negative_2_inf_half_rate'], modes=['motion'], config=[],
+                              json=str(tmp_path / 'out.json'), markdown=False,
+                              keep=str(tmp_path / 'work'), jobs=1)
+    assert bench_real.run(args) == 0
+    row = json.loads((tmp_path / 'out.json').read_text())['negative_2_inf_half_rate']['motion']
+    assert len(row['false_by_part']) == 3 and row['false'] == sum(row['false_by_part'])
+    # every second scan of each of the three scanners, as +inf where nothing returned
+    recorded = sum(1 for _ in read_scans(real_recording('leg_tracker/training/negative_2.bag'),
+                                         '/left_scan'))
+    half = list(read_scans(tmp_path / 'work' / 'negative_2_inf_half_rate', '/left_scan'))
+    assert len(half) == (recorded + 1) // 2
+    assert row['scans'] == sum(
+        sum(1 for _ in read_scans(tmp_path / 'work' / 'negative_2_inf_half_rate', t))
+        for t in ('/left_scan', '/right_scan', '/rear_scan'))
+    assert not any((s.ranges == 0).any() for s in half)

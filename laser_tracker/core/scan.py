@@ -94,6 +94,15 @@ class Scan:
             r[(r >= 0) & (r < self.range_min)] = np.inf
         return dataclasses.replace(self, ranges=r)
 
+    def every_nth_beam(self, step: int) -> Scan:
+        """The scan a scanner with ``step`` times fewer beams over the same field would have
+        made: every ``step``-th beam, from the first."""
+        if step < 1:
+            raise ValueError(f'beam step must be at least 1, got {step}')
+        return dataclasses.replace(self, ranges=self.ranges[::step].copy(),
+                                   angle_increment=self.angle_increment * step,
+                                   time_increment=self.time_increment * step)
+
     def points(self, max_range: float | None = None) -> np.ndarray:
         """Cartesian end points (M, 2) of the valid beams, in the laser frame."""
         mask = self.valid()

@@ -25,7 +25,12 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
 * ``leg_scenes`` (and ``leg_scenes_inf``, no-return readings as +inf): leg_tracker's six
   leg-labelled training recordings replayed as scenes (``tools.leg_scenes``): CLEAR MOT over
   the people of the labelled legs, pooled over the six, each replayed with a person detector
-  trained without it (the shipped model was trained on all six).
+  trained without it (the shipped model was trained on all six);
+* ``negative_2_inf_half_beams`` / ``_half_rate`` and ``leg_scenes_inf_half_beams`` /
+  ``_half_rate``: the same (no-return readings as +inf) as two other scanners would have
+  recorded them, every second beam (0.7 deg apart) or every second scan (3.75 Hz); the three
+  scanners of ``negative_2`` in one row. What a default that counts beams or scans depends
+  on.
 
 What is not present is reported as missing, never failed. It takes a few minutes
 (``--jobs 2`` on a free 2-core machine halves it).
@@ -54,6 +59,13 @@ RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_cs
               'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
                                   for s in NEGATIVE_SCANNERS) + tuple(
     f'negative_2_{s}_unseen' for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
+#: Other scanners made of the recordings of one (its no-return readings as +inf): name, keep
+#: every so many beams, keep every so many scans. The leg_tracker robot's scanners (768 beams
+#: over 270 deg at 7.5 Hz) as one with half the beams (0.7 deg apart) and one at half the
+#: rate (3.75 Hz): what a default that counts scans or beams depends on.
+OTHER_SCANNERS = (('half_beams', 2, 1), ('half_rate', 1, 2))
+RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf')
+                    for name, _, _ in OTHER_SCANNERS)
 #: The counts of CLEAR MOT that pool over the parts of a recording made of several scenes.
 POOLED = ('objects', 'misses', 'fp', 'switches', 'walking_objects', 'walking_misses',
           'walking_fp', 'walking_switches', 'confirmed', 'scans', 'outside_area')
@@ -86,15 +98,24 @@ def mode_parameters(mode: str, files=(), overrides=None):
     return parameters.load(parameters.read_files(files), overrides=overrides)
 
 
-def no_returns_as_inf(src: Path, dst: Path, scan_topics) -> None:
+def rewrite_scans(src: Path, dst: Path, scan_topics, beam_step: int = 1,
+                  scan_step: int = 1) -> None:
     """A rosbag2 copy of ``scan_topics`` of ``src`` whose no-return readings (0 and codes below
-    ``range_min``; -inf stays) read +inf, as a driver following REP 117 writes them."""
+    ``range_min``; -inf stays) read +inf, as a driver following REP 117 writes them; with
+    ``beam_step`` / ``scan_step``, only every so many beams of every so many scans of each
+    topic: the recording as a scanner with fewer beams or a lower rate would have made it."""
     from laser_tracker.conversions import scan_from_msg, scan_to_msg
     from laser_tracker.tools.bag import FACTORY, BagWriter, iter_messages
 
+    seen: dict[str, int] = {}
     with BagWriter(dst) as bag:
         for topic, t_ns, msg in iter_messages(src, scan_topics):
+            seen[topic] = seen.get(topic, -1) + 1
+            if seen[topic] % scan_step:
+                continue
             scan = scan_from_msg(msg).with_no_returns_as_inf()
+            if beam_step > 1:
+                scan = scan.every_nth_beam(beam_step)
             bag.write(topic, scan_to_msg(FACTORY, scan), int(t_ns))
 
 
@@ -127,7 +148,7 @@ def _recordings(work: Path) -> dict:
         topics = [f'/{s}_scan' for s in NEGATIVE_SCANNERS]
         inf = work / 'negative_2_inf'
         if not inf.exists():
-            no_returns_as_inf(negative, inf, topics)
+            rewrite_scans(negative, inf, topics)
         for s, topic in zip(NEGATIVE_SCANNERS, topics):
             found[f'negative_2_{s}'] = (negative, topic, 'negative')
             found[f'negative_2_{s}_inf'] = (inf, topic, 'negative')
@@ -151,26 +172,47 @@ def _unseen_negatives(names, with_detector: bool) -> dict:
 
 
 def _leg_scenes(work: Path, names, with_detector: bool) -> dict:
-    """name -> [(scene bag, scoring extras)] for the leg-labelled scenes asked for; the
-    held-out detector models are trained once (cached) when a mode uses the detector."""
+    """name -> [(scene bag, scoring extras)] for the leg-labelled scenes asked for (also as
+    the ``OTHER_SCANNERS``); the held-out detector models are trained once (cached) when a
+    mode uses the detector."""
     from laser_tracker.tools import leg_scenes
 
     positives = leg_scenes.positive_recordings()
+    variants = [('leg_scenes', False, '', 1, 1), ('leg_scenes_inf', True, '_inf', 1, 1)] + [
+        (f'leg_scenes_inf_{v}', True, f'_inf_{v}', beams, scans)
+        for v, beams, scans in OTHER_SCANNERS]
     found = {}
-    for name, inf in (('leg_scenes', False), ('leg_scenes_inf', True)):
+    for name, inf, suffix, beam_step, scan_step in variants:
         if name not in names or not positives:
             continue
         parts = []
         for src in positives:
-            scene = work / f'{src.stem}{"_inf" if inf else ""}'
+            scene = work / f'{src.stem}{suffix}'
             info_file = scene.with_suffix('.json')
             if not scene.exists():
-                info_file.write_text(json.dumps(leg_scenes.write_scene(src, scene, inf)))
+                info_file.write_text(json.dumps(leg_scenes.write_scene(
+                    src, scene, inf, beam_step=beam_step, scan_step=scan_step)))
             extra = json.loads(info_file.read_text())
             if with_detector:
                 extra['model'] = str(leg_scenes.held_out_model(src))
             parts.append((scene, extra))
         found[name] = parts
+    return found
+
+
+def _other_scanners(work: Path, names) -> dict:
+    """name -> [(bag, scan topic)] for the ``negative_2_inf`` rows of the ``OTHER_SCANNERS``
+    asked for: the three scanners, pooled in one row."""
+    negative = real_recording('leg_tracker/training/negative_2.bag')
+    topics = [f'/{s}_scan' for s in NEGATIVE_SCANNERS]
+    found = {}
+    for v, beam_step, scan_step in OTHER_SCANNERS:
+        name = f'negative_2_inf_{v}'
+        if name in names and negative.exists():
+            bag = work / name
+            if not bag.exists():
+                rewrite_scans(negative, bag, topics, beam_step, scan_step)
+            found[name] = [(bag, t) for t in topics]
     return found
 
 
@@ -254,8 +296,16 @@ def _run_one(job) -> tuple[str, str, dict]:
 
 
 def pooled(parts: list[dict]) -> dict:
-    """One row of the rows of a recording's scenes: counts added, CLEAR MOT's MOTA and the
-    recall of the pooled counts."""
+    """One row of the rows of a recording's parts: for scenes, counts added, CLEAR MOT's MOTA
+    and the recall of the pooled counts; for scanners with nobody in view, the false tracks
+    added (and each part's), per minute of all of them."""
+    if 'objects' not in parts[0]:
+        row = {k: sum(p[k] for p in parts) for k in ('scans', 'confirmed', 'false')}
+        row['replay_s'] = round(sum(p['replay_s'] for p in parts), 1)
+        row['minutes'] = round(sum(p['minutes'] for p in parts), 2)
+        row['false_per_minute'] = row['false'] / max(row['minutes'], 1e-9)
+        row['false_by_part'] = [p['false'] for p in parts]
+        return row
     row = {k: sum(p[k] for p in parts) for k in POOLED}
     row['replay_s'] = round(sum(p['replay_s'] for p in parts), 1)
     row['scenes'] = len(parts)
@@ -286,6 +336,8 @@ def run(args: argparse.Namespace) -> int:
                       for n, parts in scenes.items()})
         found.update({n: [(bag, topic, 'negative', extra)]
                       for n, (bag, topic, extra) in _unseen_negatives(names, detector).items()})
+        found.update({n: [(bag, topic, 'negative', None) for bag, topic in parts]
+                      for n, parts in _other_scanners(work, names).items()})
         jobs = []
         for name in names:
             if name not in found:
@@ -343,6 +395,9 @@ def headline(row: dict) -> str:
         return (f"{row['tracked']:,} of {row['annotated']:,} "
                 f"({100 * row['tracked'] / max(row['annotated'], 1):.1f} %), "
                 f"{row['switches']} switches, MOTA {row['mota_all']:.3f}")
+    if 'false_by_part' in row:
+        return (f"{row['false']} false ({row['false_per_minute']:.2f}/min; "
+                + ' / '.join(map(str, row['false_by_part'])) + ')')
     if 'false_per_minute' in row and 'false' in row:
         return f"{row['false']} false ({row['false_per_minute']:.2f}/min)"
     return f"{row['confirmed']} tracks ({row['confirmed_per_minute']:.2f}/min)"

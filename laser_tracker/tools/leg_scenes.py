@@ -115,10 +115,14 @@ def read_labelled(path: str | Path):
     return [items[k].scan for k in order], [items[k].legs for k in order]
 
 
-def write_scene(src: str | Path, dst: str | Path, no_return_as_inf: bool = False) -> dict:
+def write_scene(src: str | Path, dst: str | Path, no_return_as_inf: bool = False,
+                beam_step: int = 1, scan_step: int = 1) -> dict:
     """The annotated scene of the positive recording ``src`` as a rosbag2 at ``dst``
     (``/scan`` and ``/ground_truth_people_tracks``); ``no_return_as_inf``: readings of 0 and
-    below ``range_min`` written as +inf, as a REP 117 driver writes them. Returns counts."""
+    below ``range_min`` written as +inf, as a REP 117 driver writes them; ``beam_step`` /
+    ``scan_step``: every so many beams of every so many scans, as a scanner with fewer beams
+    or a lower rate would have seen the scene (the people are linked over every scan first,
+    so they keep their ids). Returns counts."""
     from laser_tracker.conversions import scan_to_msg
     from laser_tracker.tools.bag import FACTORY, TYPESTORE, BagWriter
 
@@ -126,18 +130,23 @@ def write_scene(src: str | Path, dst: str | Path, no_return_as_inf: bool = False
     stamps = np.array([s.stamp for s in scans])
     people = link_people(stamps, people_of_legs(legs))
     register_person_type(TYPESTORE)
+    kept = range(0, len(scans), scan_step)
     with BagWriter(dst) as bag:
-        for k, scan in enumerate(scans):
+        for k in kept:
+            scan = scans[k]
             if no_return_as_inf:
                 scan = scan.with_no_returns_as_inf()
+            if beam_step > 1:
+                scan = scan.every_nth_beam(beam_step)
             t_ns = int(round(scan.stamp * 1e9))
             bag.write(SCENE_SCAN_TOPIC, scan_to_msg(FACTORY, scan), t_ns)
             for m in np.flatnonzero(people.scan == k):
                 bag.write(ANNOTATION_TOPIC, _person_msg(FACTORY, TYPESTORE, people.xy[m],
                                                         int(people.person[m])), t_ns + 1000)
-    return {'scans': len(scans), 'annotations': int(people.scan.size),
-            'people': int(np.unique(people.person).size),
-            'legs': int(sum(x.shape[0] for x in legs)), 'area': labelled_area(legs)}
+    written = np.isin(people.scan, np.asarray(kept))
+    return {'scans': len(kept), 'annotations': int(written.sum()),
+            'people': int(np.unique(people.person[written]).size),
+            'legs': int(sum(np.asarray(legs[k]).reshape(-1, 2).shape[0] for k in kept)), 'area': labelled_area(legs)}
 
 
 def labelled_area(legs: list[np.ndarray], margin: float = AREA_MARGIN) -> list[float]:
