@@ -30,7 +30,10 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
   ``_half_rate``: the same (no-return readings as +inf) as two other scanners would have
   recorded them, every second beam (0.7 deg apart) or every second scan (3.75 Hz); the three
   scanners of ``negative_2`` in one row. What a default that counts beams or scans depends
-  on.
+  on;
+* ``leg_scenes_driving_inf``: the people of each positive recording put into the scans of
+  one scanner of ``negative_2`` (``tools.driving_scenes``): real legs around a robot that
+  drives through a real building, scored as the leg scenes, pooled over the six.
 
 What is not present is reported as missing, never failed. It takes a few minutes
 (``--jobs 2`` on a free 2-core machine halves it).
@@ -65,7 +68,7 @@ RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_cs
 #: rate (3.75 Hz): what a default that counts scans or beams depends on.
 OTHER_SCANNERS = (('half_beams', 2, 1), ('half_rate', 1, 2))
 RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf')
-                    for name, _, _ in OTHER_SCANNERS)
+                    for name, _, _ in OTHER_SCANNERS) + ('leg_scenes_driving_inf',)
 #: The counts of CLEAR MOT that pool over the parts of a recording made of several scenes.
 POOLED = ('objects', 'misses', 'fp', 'switches', 'walking_objects', 'walking_misses',
           'walking_fp', 'walking_switches', 'confirmed', 'scans', 'outside_area')
@@ -200,6 +203,32 @@ def _leg_scenes(work: Path, names, with_detector: bool) -> dict:
     return found
 
 
+def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
+    """``leg_scenes_driving_inf`` -> [(scene bag, scoring extras)]: the people of each
+    positive recording in the scans of one scanner of ``negative_2`` (in turn: left, right,
+    rear; ``tools.driving_scenes``), each scored with the detector trained without that
+    positive recording."""
+    from laser_tracker.tools import driving_scenes, leg_scenes
+
+    negative = real_recording('leg_tracker/training/negative_2.bag')
+    positives = leg_scenes.positive_recordings()
+    if 'leg_scenes_driving_inf' not in names or not negative.exists() or not positives:
+        return {}
+    parts = []
+    for k, src in enumerate(positives):
+        scene = work / f'{src.stem}_driving_inf'
+        info_file = scene.with_suffix('.json')
+        if not scene.exists():
+            topic = f'/{NEGATIVE_SCANNERS[k % len(NEGATIVE_SCANNERS)]}_scan'
+            info_file.write_text(json.dumps(driving_scenes.write_driving_scene(
+                src, negative, topic, scene)))
+        extra = json.loads(info_file.read_text())
+        if with_detector:
+            extra['model'] = str(leg_scenes.held_out_model(src))
+        parts.append((scene, extra))
+    return {'leg_scenes_driving_inf': parts}
+
+
 def _other_scanners(work: Path, names) -> dict:
     """name -> [(bag, scan topic)] for the ``negative_2_inf`` rows of the ``OTHER_SCANNERS``
     asked for: the three scanners, pooled in one row."""
@@ -332,6 +361,7 @@ def run(args: argparse.Namespace) -> int:
                  for n, (bag, topic, scoring) in _recordings(work).items()}
         detector = any(m != 'paper' for m in modes)
         scenes = _leg_scenes(work, names, detector)
+        scenes.update(_driving_scenes(work, names, detector))
         found.update({n: [(bag, '/scan', 'scene', extra) for bag, extra in parts]
                       for n, parts in scenes.items()})
         found.update({n: [(bag, topic, 'negative', extra)]

@@ -141,7 +141,7 @@ def write_scene(src: str | Path, dst: str | Path, no_return_as_inf: bool = False
             t_ns = int(round(scan.stamp * 1e9))
             bag.write(SCENE_SCAN_TOPIC, scan_to_msg(FACTORY, scan), t_ns)
             for m in np.flatnonzero(people.scan == k):
-                bag.write(ANNOTATION_TOPIC, _person_msg(FACTORY, TYPESTORE, people.xy[m],
+                bag.write(ANNOTATION_TOPIC, person_msg(FACTORY, TYPESTORE, people.xy[m],
                                                         int(people.person[m])), t_ns + 1000)
     written = np.isin(people.scan, np.asarray(kept))
     return {'scans': len(kept), 'annotations': int(written.sum()),
@@ -157,7 +157,8 @@ def labelled_area(legs: list[np.ndarray], margin: float = AREA_MARGIN) -> list[f
     return [float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])]
 
 
-def _person_msg(factory, typestore, xy, oid: int):
+def person_msg(factory, typestore, xy, oid: int):
+    """An annotation message (leg_tracker's Person) of the person ``oid`` at ``xy``."""
     pose = factory.make('geometry_msgs/msg/Pose',
                         position=factory.make('geometry_msgs/msg/Point', x=float(xy[0]),
                                               y=float(xy[1]), z=0.0),
