@@ -174,59 +174,58 @@ def _unseen_negatives(names, with_detector: bool) -> dict:
     return found
 
 
-def _leg_scenes(work: Path, names, with_detector: bool) -> dict:
-    """name -> [(scene bag, scoring extras)] for the leg-labelled scenes asked for (also as
-    the ``OTHER_SCANNERS``); the held-out detector models are trained once (cached) when a
-    mode uses the detector."""
+def _scene_parts(work: Path, suffix: str, write, with_detector: bool) -> list:
+    """[(scene bag, scoring extras)] of the positive recordings, each written once by
+    ``write(k, recording, scene)`` (which returns the scene's counts) into ``work`` under the
+    recording's name and ``suffix``; with the detector trained without that recording (once,
+    cached) when ``with_detector``."""
     from laser_tracker.tools import leg_scenes
 
-    positives = leg_scenes.positive_recordings()
+    parts = []
+    for k, src in enumerate(leg_scenes.positive_recordings()):
+        scene = work / f'{src.stem}{suffix}'
+        info_file = scene.with_suffix('.json')
+        if not scene.exists():
+            info_file.write_text(json.dumps(write(k, src, scene)))
+        extra = json.loads(info_file.read_text())
+        if with_detector:
+            extra['model'] = str(leg_scenes.held_out_model(src))
+        parts.append((scene, extra))
+    return parts
+
+
+def _leg_scenes(work: Path, names, with_detector: bool) -> dict:
+    """name -> [(scene bag, scoring extras)] for the leg-labelled scenes asked for (also as
+    the ``OTHER_SCANNERS``)."""
+    from laser_tracker.tools import leg_scenes
+
+    if not leg_scenes.positive_recordings():
+        return {}
     variants = [('leg_scenes', False, '', 1, 1), ('leg_scenes_inf', True, '_inf', 1, 1)] + [
         (f'leg_scenes_inf_{v}', True, f'_inf_{v}', beams, scans)
         for v, beams, scans in OTHER_SCANNERS]
-    found = {}
-    for name, inf, suffix, beam_step, scan_step in variants:
-        if name not in names or not positives:
-            continue
-        parts = []
-        for src in positives:
-            scene = work / f'{src.stem}{suffix}'
-            info_file = scene.with_suffix('.json')
-            if not scene.exists():
-                info_file.write_text(json.dumps(leg_scenes.write_scene(
-                    src, scene, inf, beam_step=beam_step, scan_step=scan_step)))
-            extra = json.loads(info_file.read_text())
-            if with_detector:
-                extra['model'] = str(leg_scenes.held_out_model(src))
-            parts.append((scene, extra))
-        found[name] = parts
-    return found
+    return {name: _scene_parts(
+        work, suffix, lambda k, src, scene, inf=inf, b=b, n=n: leg_scenes.write_scene(
+            src, scene, inf, beam_step=b, scan_step=n), with_detector)
+        for name, inf, suffix, b, n in variants if name in names}
 
 
 def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
     """``leg_scenes_driving_inf`` -> [(scene bag, scoring extras)]: the people of each
     positive recording in the scans of one scanner of ``negative_2`` (in turn: left, right,
-    rear; ``tools.driving_scenes``), each scored with the detector trained without that
-    positive recording."""
+    rear; ``tools.driving_scenes``)."""
     from laser_tracker.tools import driving_scenes, leg_scenes
 
     negative = real_recording('leg_tracker/training/negative_2.bag')
-    positives = leg_scenes.positive_recordings()
-    if 'leg_scenes_driving_inf' not in names or not negative.exists() or not positives:
+    if 'leg_scenes_driving_inf' not in names or not negative.exists() \
+            or not leg_scenes.positive_recordings():
         return {}
-    parts = []
-    for k, src in enumerate(positives):
-        scene = work / f'{src.stem}_driving_inf'
-        info_file = scene.with_suffix('.json')
-        if not scene.exists():
-            topic = f'/{NEGATIVE_SCANNERS[k % len(NEGATIVE_SCANNERS)]}_scan'
-            info_file.write_text(json.dumps(driving_scenes.write_driving_scene(
-                src, negative, topic, scene)))
-        extra = json.loads(info_file.read_text())
-        if with_detector:
-            extra['model'] = str(leg_scenes.held_out_model(src))
-        parts.append((scene, extra))
-    return {'leg_scenes_driving_inf': parts}
+
+    def write(k, src, scene):
+        topic = f'/{NEGATIVE_SCANNERS[k % len(NEGATIVE_SCANNERS)]}_scan'
+        return driving_scenes.write_driving_scene(src, negative, topic, scene)
+
+    return {'leg_scenes_driving_inf': _scene_parts(work, '_driving_inf', write, with_detector)}
 
 
 def _other_scanners(work: Path, names) -> dict:
