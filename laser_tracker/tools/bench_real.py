@@ -41,6 +41,7 @@ What is not present is reported as missing, never failed. It takes a few minutes
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import math
@@ -204,10 +205,20 @@ def _leg_scenes(work: Path, names, with_detector: bool) -> dict:
     variants = [('leg_scenes', False, '', 1, 1), ('leg_scenes_inf', True, '_inf', 1, 1)] + [
         (f'leg_scenes_inf_{v}', True, f'_inf_{v}', beams, scans)
         for v, beams, scans in OTHER_SCANNERS]
-    return {name: _scene_parts(
-        work, suffix, lambda k, src, scene, inf=inf, b=b, n=n: leg_scenes.write_scene(
-            src, scene, inf, beam_step=b, scan_step=n), with_detector)
-        for name, inf, suffix, b, n in variants if name in names}
+    found = {}
+    for name, inf, suffix, beam_step, scan_step in variants:
+        if name in names:
+            write = functools.partial(_write_scene, inf=inf, beam_step=beam_step,
+                                      scan_step=scan_step)
+            found[name] = _scene_parts(work, suffix, write, with_detector)
+    return found
+
+
+def _write_scene(k: int, src: Path, scene: Path, **variant) -> dict:
+    """The leg scene of the ``k``-th positive recording ``src``, written to ``scene``."""
+    from laser_tracker.tools import leg_scenes
+
+    return leg_scenes.write_scene(src, scene, variant.pop('inf'), **variant)
 
 
 def _driving_scenes(work: Path, names, with_detector: bool) -> dict:

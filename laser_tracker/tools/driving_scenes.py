@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from laser_tracker.core.geometry import pairwise_distances, points_in_frame, transform_points
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import segment
 from laser_tracker.tools.leg_scenes import (SCENE_SCAN_TOPIC, link_people, people_of_legs,
@@ -90,27 +91,13 @@ def leg_outlines(scan: Scan, legs: np.ndarray) -> list[np.ndarray | None]:
     return out
 
 
-def _to_frame(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """World points (n, 2) in the frame of ``pose`` (x, y, theta)."""
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    d = np.asarray(xy, float).reshape(-1, 2) - pose[:2]
-    return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
-
-
-def _to_world(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    p = np.asarray(xy, float).reshape(-1, 2)
-    return np.column_stack((c * p[:, 0] - s * p[:, 1] + pose[0],
-                            s * p[:, 0] + c * p[:, 1] + pose[1]))
-
-
 def carried(outline: np.ndarray, anchor: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """``outline`` (standing scanner's frame, which sits at ``anchor`` in the world) in the
     frame of the scanner at ``pose``, turned about its centre so that it faces that scanner
     as it faced the standing one (its points keep their offsets along and across the line
     of sight)."""
     centre0 = outline.mean(axis=0)
-    centre1 = _to_frame(pose, _to_world(anchor, centre0))[0]
+    centre1 = points_in_frame(pose, transform_points(anchor, centre0[None, :]))[0]
     v0 = centre0 / max(np.hypot(*centre0), 1e-9)
     v1 = centre1 / max(np.hypot(*centre1), 1e-9)
     rel = outline - centre0
@@ -196,7 +183,8 @@ def write_driving_scene(positive: str | Path, negative: str | Path, topic: str,
         # the run ends where the driving robot would run into one of its people
         for n, k in enumerate(run):
             here = people.xy[people.scan == k]
-            near = np.hypot(*_to_frame(poses[at + n], _to_world(poses[at], here)).T)
+            world = transform_points(poses[at], here)
+            near = np.hypot(*points_in_frame(poses[at + n], world).T)
             if near.size and near.min() < CLEARANCE:
                 run = run[:n]
                 break
@@ -219,8 +207,7 @@ def write_driving_scene(positive: str | Path, negative: str | Path, topic: str,
             if rows.size:
                 here = people.xy[rows]
                 label = np.asarray(legs[k], float).reshape(-1, 2)
-                owner = np.argmin(np.hypot(*(label[:, None, :] - here[None, :, :])
-                                           .transpose(2, 0, 1)), axis=1)
+                owner = np.argmin(pairwise_distances(label, here), axis=1)
                 from_person = np.full(scan.n_beams, -1, np.int64)
                 for leg, outline in enumerate(leg_outlines(standing[k], label)):
                     if outline is None:
@@ -236,8 +223,8 @@ def write_driving_scene(positive: str | Path, negative: str | Path, topic: str,
                     from_person[beams[nearer]] = owner[leg]
                 scan = dataclasses.replace(scan, ranges=ranges)
                 seen = np.bincount(from_person[from_person >= 0], minlength=rows.size)
-                world = _to_world(poses[anchor[j]], here)
-                local = _to_frame(poses[j], world)
+                world = transform_points(poses[anchor[j]], here)
+                local = points_in_frame(poses[j], world)
             bag.write(SCENE_SCAN_TOPIC, scan_to_msg(FACTORY, scan), t_ns)
             written += 1
             for m in range(rows.size):
