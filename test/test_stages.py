@@ -290,3 +290,24 @@ def test_a_reset_detector_reuses_its_background_and_equals_a_new_one():
     for name in ('key', 'count', 'last'):
         assert np.array_equal(getattr(used.background, name), getattr(fresh.background, name))
     assert used.background.previous == fresh.background.previous
+
+
+def test_switching_the_footprint_rule_on_rebuilds_the_ray_tables():
+    """difference.footprint reads each cell's beam span from the ray tables, which hold it
+    only when built for it: switching the rule at run time rebuilds them (else the rule
+    would silently look at the centre beam alone)."""
+    from dataclasses import replace
+
+    from laser_tracker.core.blobs import BlobConfig
+    from laser_tracker.core.difference import DifferenceConfig
+    from laser_tracker.core.grid import GridConfig
+
+    det = Detector(difference=DifferenceConfig(footprint=False))
+    det.update(ring_scan(0.0), pose(0.0))
+    table = det.builder.table(ring_scan(0.0))
+    assert (table.rays[1] == table.rays[2]).all()          # no spans without the rule
+    det.reconfigure(GridConfig(), replace(det.difference_config, footprint=True), BlobConfig())
+    assert det.builder.footprints
+    det.update(ring_scan(DT), pose(DT))
+    table = det.builder.table(ring_scan(DT))
+    assert (table.rays[2] > table.rays[1]).any()           # near cells span several beams

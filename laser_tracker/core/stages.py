@@ -319,6 +319,7 @@ class Detector:
         old = self.difference_config
         rebuild = (grid != self.grid_config or difference.memory != old.memory
                    or difference.max_history != old.max_history
+                   or difference.footprint != old.footprint       # the ray tables' spans
                    or (difference.static_time, difference.static_occupied,
                        difference.static_max_step)
                    != (old.static_time, old.static_occupied, old.static_max_step))

@@ -59,6 +59,8 @@ from laser_tracker.tools.data import real_recording
 REPO = Path(__file__).resolve().parents[2]
 MODES = ('paper', 'motion', 'defaults')
 NEGATIVE_SCANNERS = ('left', 'right', 'rear')
+#: Their scan topics in negative_2.bag.
+NEGATIVE_TOPICS = tuple(f'/{s}_scan' for s in NEGATIVE_SCANNERS)
 RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_csail',
               'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
                                   for s in NEGATIVE_SCANNERS) + tuple(
@@ -149,11 +151,10 @@ def _recordings(work: Path) -> dict:
         found['leg_demo'] = (demo, '/scan', 'unlabelled')
     negative = real_recording('leg_tracker/training/negative_2.bag')
     if negative.exists():
-        topics = [f'/{s}_scan' for s in NEGATIVE_SCANNERS]
         inf = work / 'negative_2_inf'
         if not inf.exists():
-            rewrite_scans(negative, inf, topics)
-        for s, topic in zip(NEGATIVE_SCANNERS, topics):
+            rewrite_scans(negative, inf, NEGATIVE_TOPICS)
+        for s, topic in zip(NEGATIVE_SCANNERS, NEGATIVE_TOPICS):
             found[f'negative_2_{s}'] = (negative, topic, 'negative')
             found[f'negative_2_{s}_inf'] = (inf, topic, 'negative')
     return found
@@ -233,7 +234,7 @@ def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
         return {}
 
     def write(k, src, scene):
-        topic = f'/{NEGATIVE_SCANNERS[k % len(NEGATIVE_SCANNERS)]}_scan'
+        topic = NEGATIVE_TOPICS[k % len(NEGATIVE_TOPICS)]
         return driving_scenes.write_driving_scene(src, negative, topic, scene)
 
     return {'leg_scenes_driving_inf': _scene_parts(work, '_driving_inf', write, with_detector)}
@@ -243,15 +244,14 @@ def _other_scanners(work: Path, names) -> dict:
     """name -> [(bag, scan topic)] for the ``negative_2_inf`` rows of the ``OTHER_SCANNERS``
     asked for: the three scanners, pooled in one row."""
     negative = real_recording('leg_tracker/training/negative_2.bag')
-    topics = [f'/{s}_scan' for s in NEGATIVE_SCANNERS]
     found = {}
     for v, beam_step, scan_step in OTHER_SCANNERS:
         name = f'negative_2_inf_{v}'
         if name in names and negative.exists():
             bag = work / name
             if not bag.exists():
-                rewrite_scans(negative, bag, topics, beam_step, scan_step)
-            found[name] = [(bag, t) for t in topics]
+                rewrite_scans(negative, bag, NEGATIVE_TOPICS, beam_step, scan_step)
+            found[name] = [(bag, t) for t in NEGATIVE_TOPICS]
     return found
 
 

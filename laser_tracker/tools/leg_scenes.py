@@ -142,11 +142,12 @@ def write_scene(src: str | Path, dst: str | Path, no_return_as_inf: bool = False
             bag.write(SCENE_SCAN_TOPIC, scan_to_msg(FACTORY, scan), t_ns)
             for m in np.flatnonzero(people.scan == k):
                 bag.write(ANNOTATION_TOPIC, person_msg(FACTORY, TYPESTORE, people.xy[m],
-                                                        int(people.person[m])), t_ns + 1000)
+                                                       int(people.person[m])), t_ns + 1000)
     written = np.isin(people.scan, np.asarray(kept))
     return {'scans': len(kept), 'annotations': int(written.sum()),
             'people': int(np.unique(people.person[written]).size),
-            'legs': int(sum(np.asarray(legs[k]).reshape(-1, 2).shape[0] for k in kept)), 'area': labelled_area(legs)}
+            'legs': int(sum(np.asarray(legs[k]).reshape(-1, 2).shape[0] for k in kept)),
+            'area': labelled_area(legs)}
 
 
 def labelled_area(legs: list[np.ndarray], margin: float = AREA_MARGIN) -> list[float]:
