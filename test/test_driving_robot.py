@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from laser_tracker import parameters
+from laser_tracker.core.pipeline import Pipeline
 from laser_tracker.tools.evaluate import evaluate_replay
 from laser_tracker.tools.replay import replay_bag
-from laser_tracker.tools.bag import read_platform_truth, resolve_bag
+from laser_tracker.tools.bag import read_platform_truth, read_scans, resolve_bag
+from laser_tracker.tools.data import real_recording
 from laser_tracker.tools.sim.lidar import Hokuyo, HokuyoConfig
 from laser_tracker.tools.sim.recorder import SELF, record
 from laser_tracker.tools.sim.scenarios import build
@@ -176,3 +178,29 @@ def test_the_mixed_returns_past_the_body_edge_make_tracks_unless_masked(tmp_path
     assert ev.result['false_detections'] >= 5
     _, ev = _replay(tmp_path_factory)
     assert ev.result['false_detections'] <= 1
+
+
+NEGATIVE = real_recording('leg_tracker/training/negative_2.bag')
+
+
+def _confirmed_with_inf(topic: str, **overrides) -> int:
+    """Tracks the pipeline confirms on one scanner of negative_2 (nobody in view) with its
+    no-return readings written as +inf, as a driver following REP 117 writes them."""
+    config = parameters.pipeline_config(parameters.load([], overrides=overrides))
+    pipeline = Pipeline(config)
+    confirmed = 0
+    for scan in read_scans(NEGATIVE, topic):
+        if hasattr(scan, 'ranges'):
+            confirmed += len(pipeline.step(scan.with_no_returns_as_inf()).newly_confirmed)
+    return confirmed
+
+
+@pytest.mark.skipif(not NEGATIVE.exists(),
+                    reason='negative_2.bag is not under $LASER_TRACKER_DATA (README.md, "Data")')
+@pytest.mark.parametrize('topic', ['/left_scan', '/right_scan'])
+def test_silent_beams_of_a_scanner_that_loses_echoes_free_little_on_the_real_robot(topic):
+    """The real robot driving with nobody around, its missing returns as +inf: beams that
+    return nothing from dark walls free space only up to lost_echo_free, and no track is
+    confirmed; freeing what no_return_free allows confirms a false one."""
+    assert _confirmed_with_inf(topic) == 0
+    assert _confirmed_with_inf(topic, **{'grid.lost_echo_free': 100.0}) >= 1

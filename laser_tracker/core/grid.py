@@ -106,12 +106,13 @@ class GridConfig:
         'grazing), as Hokuyo-class scanners do indoors (8-10 % of their beams in the '
         'leg_tracker recordings, 0-3 % for SICK LMS logs).', min=0.0, max=1.0)
     lost_echo_free: float = param(
-        100.0, 'On a scanner that loses echoes (lost_echoes), a beam without a return frees '
-        'at most this far (m): its silence may be a dark, specular or grazing surface at any '
-        'range, seen again at the next scan (0: a lost echo frees nothing). A trade-off, off '
-        'by default (100: no_return_free applies alone): fewer false tracks indoors, fewer '
-        'people found where beams that return nothing do look into open space.',
-        min=0.0, max=100.0)
+        3.0, 'On a scanner that loses echoes (lost_echoes), a beam without a return frees '
+        'at most this far (m): beyond it its silence may be a dark, specular or grazing '
+        'surface, seen again at the next scan (0: a lost echo frees nothing; 100: '
+        'no_return_free applies alone). Depends on how far the scanner still sees the '
+        'darkest surfaces around it: 3 m for the Hokuyo-class scanners of the recordings '
+        'indoors. A scanner that returns from every surface in range (SICK LMS) is not '
+        'affected.', min=0.0, max=100.0)
     grazing_incidence: float = param(
         60.0, 'A surface seen at this angle of incidence or more (deg from its normal) at the '
         'edge of a run of beams without a return is taken to continue into the run '
