@@ -117,6 +117,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.ride_along_reach': 0.0,
         'hypotheses.segment_gate': 0.0,    # a hypothesis without a blob coasts and fades
         'hypotheses.person_min_travel': 0.0,
+        'hypotheses.view_travel_ratio': 0.0,  # no travel against the view's change
         'hypotheses.person_confirm_samples': 0,
         'hypotheses.person_confirm_pairs': 0,
         'hypotheses.person_confirm_time': 0.0,

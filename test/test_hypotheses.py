@@ -429,6 +429,28 @@ def test_a_blob_that_rides_along_near_the_scanner_is_ignored():
     assert run(0.6, relative=1.5).confirmed.any()             # someone overtaking it
 
 
+def test_a_blob_that_moves_less_than_the_view_changes_is_not_confirmed_while_driving():
+    """The scanner drives at 1.5 m/s past a blob 2 m to its side that creeps along at
+    0.6 m/s in the world (a static object whose blob shifts as the viewpoint changes): a
+    static object there moves 1.5 m/s in the scanner's frame, so the blob has moved less
+    than view_travel_ratio (0.5) of that and is not confirmed, though it has its samples. A
+    walker crossing away from the robot at 1.2 m/s is confirmed; so is the creeping blob
+    when the scanner stands, or with the rule off (paper)."""
+    def run(creep, drive=1.5, ratio=0.5, away=0.0):
+        tr = HypothesisTracker(HypothesisConfig(view_travel_ratio=ratio), KalmanConfig())
+        for k in range(10):
+            t = k * DT
+            b = frame(t, (1.0 + creep * t, 2.0 + away * t))
+            b.origin = np.array([drive * t, 0.0, 0.0])
+            tr.update(b)
+        return tr.hyp
+    creeping = run(0.6)
+    assert len(creeping) == 1 and creeping.samples[0] >= 8 and not creeping.confirmed[0]
+    assert run(0.0, away=1.2).confirmed.all()
+    assert run(0.6, drive=0.0).confirmed.all()
+    assert run(0.6, ratio=0.0).confirmed.all()
+
+
 def test_the_state_is_one_aligned_record_per_hypothesis_moved_whole():
     """take and concat move every field of a row unchanged; every number is aligned."""
     from laser_tracker.core.tracking.state import Hypotheses, hypothesis_dtype

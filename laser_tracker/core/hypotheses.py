@@ -39,7 +39,7 @@ deletion, confirmation):
     (paper: m = 4). A hypothesis' first sample is its creation pair (the first velocity
     measurement), each supporting blob adds one. Further rules (``core.tracking
     .confirmation``), each off at 0: ``person_min_travel`` / ``person_confirm_samples``,
-    ``ride_along_speed``, ``confirm_time``, ``confirm_min_speed``, ``confirm_min_travel``,
+    ``view_travel_ratio``, ``ride_along_speed``, ``confirm_time``, ``confirm_min_speed``, ``confirm_min_travel``,
     ``duplicate_radius``.
 
 Beyond the paper, person detections are measurements of their own kind (``person_*``), and
@@ -200,6 +200,15 @@ class HypothesisConfig:
         'where the scans have always seen something, and a leg-like patch of a wall that '
         'rides along with a moving robot goes nowhere in its frame. 0 = no such '
         'condition.', min=0.0, max=10.0)
+    view_travel_ratio: float = param(
+        0.5, 'A hypothesis started by motion blobs or by a person who walked in is confirmed '
+        'only once it has moved, in the world, at least this fraction of the displacement '
+        'the scanner\'s own motion since its start causes at the place where it started (how '
+        'far a static object there has moved in the scanner\'s frame): from a moving robot, '
+        'a static object also seems to change and to stand in space seen free before '
+        '(parallax, resampling, registration error growing with the turn), while a mover '
+        'goes on moving. The same fraction as difference.motion_depth. A stationary scanner '
+        'is not affected. 0 = off (paper).', min=0.0, max=10.0)
     person_confirm_samples: int = param(
         30, 'A hypothesis started by a person detection is also confirmed once this many '
         'person detections have supported it, though it was never seen walking: a person '

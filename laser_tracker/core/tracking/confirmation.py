@@ -33,7 +33,7 @@ def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np
     legs off static background, supported it (someone in view from the start). A detection
     standing in space seen free before (someone who walked in), away from a place the scan
     sees left empty (walked out) or legs whose separation swings (``gait_spread``) made it
-    ``PERSON_WALKED_IN``: no restriction."""
+    ``PERSON_WALKED_IN``: no restriction here (but see :func:`moved_more_than_the_view`)."""
     h = candidates
     world, local = _travel(h, frame)
     out = (h.origin != PERSON) | (np.minimum(world, local) >= c.person_min_travel)
@@ -42,6 +42,20 @@ def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np
     if c.person_confirm_pairs > 0:
         out |= h.pair_samples >= c.person_confirm_pairs
     return out
+
+
+def moved_more_than_the_view(c, candidates: Hypotheses, confirmed: Hypotheses,
+                             frame: Frame) -> np.ndarray:
+    """A hypothesis started by motion blobs or by a person who walked in
+    (``PERSON_WALKED_IN``) has moved, in the world, ``view_travel_ratio`` times the
+    displacement the scanner's motion since its start causes at its starting place (where
+    a static object there now is in the scanner's frame against where it was then): a
+    change that the changing viewpoint alone explains (parallax, beams that passed a static
+    object before, registration error) is no evidence of motion."""
+    h = candidates
+    world = np.hypot(*(h.position - h.start).T)
+    view = np.hypot(*(frame.scanner.to_scanner(h.start) - h.start_local).T)
+    return (h.origin == PERSON) | (world >= c.view_travel_ratio * view)
 
 
 def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
@@ -99,7 +113,8 @@ def not_a_duplicate(c, candidates: Hypotheses, confirmed: Hypotheses,
 
 
 #: The further rules, each with the parameter that switches it on (above 0).
-RULES = ((walked, 'person_min_travel'), (not_riding_along, 'ride_along_speed'),
+RULES = ((walked, 'person_min_travel'), (moved_more_than_the_view, 'view_travel_ratio'),
+         (not_riding_along, 'ride_along_speed'),
          (old_enough, 'confirm_time'), (fast_enough, 'confirm_min_speed'),
          (travelled, 'confirm_min_travel'), (not_a_duplicate, 'duplicate_radius'))
 
