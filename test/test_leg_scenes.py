@@ -16,6 +16,7 @@ from laser_tracker.tools.bag import read_scans
 from laser_tracker.tools.data import real_recording
 from laser_tracker.tools.evaluate import evaluate_recording
 
+from bench_rows import bench_real_row
 from test_evaluate import write_replay
 
 PERIOD = 1 / 7.5
@@ -193,15 +194,7 @@ def test_a_real_positive_recording_becomes_a_scene_of_its_labelled_legs(tmp_path
 @pytest.mark.skipif(not real_recording('leg_tracker/training/negative_2.bag').exists(),
                     reason='negative_2.bag is not under $LASER_TRACKER_DATA (README.md, "Data")')
 def test_bench_real_replays_negative_2_as_a_scanner_at_half_the_rate(tmp_path):
-    import argparse
-    import json
-
-    from laser_tracker.tools import bench_real
-    args = argparse.Namespace(only=['negative_2_inf_half_rate'], modes=['motion'], config=[],
-                              json=str(tmp_path / 'out.json'), markdown=False,
-                              keep=str(tmp_path / 'work'), jobs=1)
-    assert bench_real.run(args) == 0
-    row = json.loads((tmp_path / 'out.json').read_text())['negative_2_inf_half_rate']['motion']
+    row = bench_real_row(tmp_path, 'negative_2_inf_half_rate')
     assert len(row['false_by_part']) == 3 and row['false'] == sum(row['false_by_part'])
     # every second scan of each of the three scanners, as +inf where nothing returned
     recorded = sum(1 for _ in read_scans(real_recording('leg_tracker/training/negative_2.bag'),

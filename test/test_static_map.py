@@ -16,6 +16,7 @@ from laser_tracker.tools.data import real_recording
 from laser_tracker.tools.static_map import (StaticMap, StaticMapConfig, ego_segments,
                                             scan_cells)
 
+from bench_rows import bench_real_row
 from test_evaluate import run_cli, write_replay
 
 N_SCANS = 120
@@ -243,3 +244,18 @@ def test_real_corrected_poses_make_a_map_the_returns_fall_on():
         pts = transform_points(poses[j], scans[j].points(max_range=20.0))
         shares.append(sm.on_structure(pts).mean())
     assert np.median(shares) > 0.9
+
+
+@pytest.mark.skipif(not REAL.exists(), reason=f'{REAL} not available')
+def test_bench_real_replays_freiburg_with_other_draws_of_the_odometry_noise(tmp_path):
+    """freiburg_other_noise: each noise model drawn with three other seeds, six replays
+    pooled in one row, each with odometry of its own."""
+    from laser_tracker.tools import bench_real
+    from laser_tracker.tools.bag import read_odometry
+    row = bench_real_row(tmp_path, 'freiburg_other_noise', jobs=2)
+    assert len(row['false_by_part']) == 6 and row['false'] == sum(row['false_by_part'])
+    odometry = [read_odometry(tmp_path / 'work' / f'freiburg_realistic_seed{s}').poses
+                for s in bench_real.OTHER_NOISE_SEEDS]
+    assert all(len(o) == len(odometry[0]) for o in odometry)
+    assert not np.allclose(odometry[0], odometry[1]) and not np.allclose(odometry[1],
+                                                                         odometry[2])

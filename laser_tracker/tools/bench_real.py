@@ -11,7 +11,9 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
   annotated person and over the walking ones;
 * ``freiburg_realistic`` / ``freiburg_poor``: freiburg-079 part 1, imported with its
   SLAM-corrected poses as the reference and a noisy copy as odometry (two noise models):
-  false tracks per minute on static structure;
+  false tracks per minute on static structure; ``freiburg_other_noise``: the same with three
+  other draws of each noise model, six replays in one row (the defaults must not depend on
+  one draw);
 * ``mit_csail``: the raw mit-csail log with its own odometry: false tracks per minute on
   static structure mapped with the replay's poses;
 * ``leg_demo``: leg_tracker's stationary demo (people walking and standing, no labels):
@@ -61,8 +63,8 @@ MODES = ('paper', 'motion', 'defaults')
 NEGATIVE_SCANNERS = ('left', 'right', 'rear')
 #: Their scan topics in negative_2.bag.
 NEGATIVE_TOPICS = tuple(f'/{s}_scan' for s in NEGATIVE_SCANNERS)
-RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_csail',
-              'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
+RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor',
+              'freiburg_other_noise', 'mit_csail', 'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
                                   for s in NEGATIVE_SCANNERS) + tuple(
     f'negative_2_{s}_unseen' for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
 #: Other scanners made of the recordings of one (its no-return readings as +inf): name, keep
@@ -72,6 +74,10 @@ RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor', 'mit_cs
 OTHER_SCANNERS = (('half_beams', 2, 1), ('half_rate', 1, 2))
 RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf')
                     for name, _, _ in OTHER_SCANNERS) + ('leg_scenes_driving_inf',)
+#: The odometry noise models of the Freiburg rows, and the seeds of ``freiburg_other_noise``
+#: (the single rows draw seed 0).
+FREIBURG_NOISE = ('realistic', 'poor')
+OTHER_NOISE_SEEDS = (1, 2, 3)
 #: The counts of CLEAR MOT that pool over the parts of a recording made of several scenes.
 POOLED = ('objects', 'misses', 'fp', 'switches', 'walking_objects', 'walking_misses',
           'walking_fp', 'walking_switches', 'confirmed', 'scans', 'outside_area')
@@ -135,11 +141,9 @@ def _recordings(work: Path) -> dict:
         found['person_following'] = (pf, '/scan_base2', 'annotated')
     freiburg = real_recording('carmen/freiburg-079-part1-corrected.log.gz')
     if freiburg.exists():
-        for noise in ('realistic', 'poor'):
-            out = work / f'freiburg_{noise}'
-            if not out.exists():
-                convert(freiburg, out, odometry_noise_model=noise, seed=0)
-            found[f'freiburg_{noise}'] = (out, '/scan', 'reference')
+        for noise in FREIBURG_NOISE:
+            found[f'freiburg_{noise}'] = (_freiburg(work, freiburg, noise, 0), '/scan',
+                                          'reference')
     mit = real_recording('carmen/mit-csail.clf')
     if mit.exists():
         out = work / 'mit_csail'
@@ -158,6 +162,27 @@ def _recordings(work: Path) -> dict:
             found[f'negative_2_{s}'] = (negative, topic, 'negative')
             found[f'negative_2_{s}_inf'] = (inf, topic, 'negative')
     return found
+
+
+def _freiburg(work: Path, log: Path, noise: str, seed: int) -> Path:
+    """Freiburg part 1 imported (once) with odometry of ``noise`` drawn with ``seed``."""
+    from laser_tracker.tools.import_carmen import convert
+
+    out = work / (f'freiburg_{noise}' if seed == 0 else f'freiburg_{noise}_seed{seed}')
+    if not out.exists():
+        convert(log, out, odometry_noise_model=noise, seed=seed)
+    return out
+
+
+def _other_noise(work: Path, names) -> dict:
+    """``freiburg_other_noise`` -> [its replays]: each noise model with each of
+    ``OTHER_NOISE_SEEDS``."""
+    log = real_recording('carmen/freiburg-079-part1-corrected.log.gz')
+    if 'freiburg_other_noise' not in names or not log.exists():
+        return {}
+    return {'freiburg_other_noise': [_freiburg(work, log, noise, seed)
+                                     for noise in FREIBURG_NOISE
+                                     for seed in OTHER_NOISE_SEEDS]}
 
 
 def _unseen_negatives(names, with_detector: bool) -> dict:
@@ -336,8 +361,9 @@ def _run_one(job) -> tuple[str, str, dict]:
 
 def pooled(parts: list[dict]) -> dict:
     """One row of the rows of a recording's parts: for scenes, counts added, CLEAR MOT's MOTA
-    and the recall of the pooled counts; for scanners with nobody in view, the false tracks
-    added (and each part's), per minute of all of them."""
+    and the recall of the pooled counts; for scanners with nobody in view or replays scored
+    on static structure, the false tracks added (and each part's), per minute of all of
+    them."""
     if 'objects' not in parts[0]:
         row = {k: sum(p[k] for p in parts) for k in ('scans', 'confirmed', 'false')}
         row['replay_s'] = round(sum(p['replay_s'] for p in parts), 1)
@@ -378,6 +404,8 @@ def run(args: argparse.Namespace) -> int:
                       for n, (bag, topic, extra) in _unseen_negatives(names, detector).items()})
         found.update({n: [(bag, topic, 'negative', None) for bag, topic in parts]
                       for n, parts in _other_scanners(work, names).items()})
+        found.update({n: [(bag, '/scan', 'reference', None) for bag in parts]
+                      for n, parts in _other_noise(work, names).items()})
         jobs = []
         for name in names:
             if name not in found:
