@@ -464,10 +464,10 @@ def headline(row: dict) -> str:
                 f"({100 * row['tracked'] / max(row['annotated'], 1):.1f} %), "
                 f"{row['switches']} switches, MOTA {row['mota_all']:.3f}")
     if 'false_by_part' in row:
-        return (f"{row['false']} false ({row['false_per_minute']:.2f}/min; "
+        return (f"{row['false']:,} false ({row['false_per_minute']:.2f}/min; "
                 + ' / '.join(map(str, row['false_by_part'])) + ')')
     if 'false_per_minute' in row and 'false' in row:
-        return f"{row['false']} false ({row['false_per_minute']:.2f}/min)"
+        return f"{row['false']:,} false ({row['false_per_minute']:.2f}/min)"
     return f"{row['confirmed']} tracks ({row['confirmed_per_minute']:.2f}/min)"
 
 
