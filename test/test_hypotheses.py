@@ -451,6 +451,26 @@ def test_a_blob_that_moves_less_than_the_view_changes_is_not_confirmed_while_dri
     assert run(0.6, ratio=0.0).confirmed.all()
 
 
+def test_an_unseen_track_is_reported_only_with_report_unseen():
+    """A walker confirmed, then missed for one scan (it coasts), then seen again: it is
+    reported as confirmed throughout by default; with report_unseen false not while it
+    coasts, and again with its id once a blob supports it."""
+    def reported(report_unseen):
+        tr = HypothesisTracker(HypothesisConfig(report_unseen=report_unseen), KalmanConfig())
+        out = []
+        for k in range(9):
+            t = k * DT
+            blobs = () if k == 6 else ((1.0 + t, 0.0),)
+            tr.update(frame(t, *blobs))
+            tracks = tr.report(t)
+            out.append(tracks.track_id[tracks.confirmed].tolist())
+        return out
+    shown = reported(True)
+    assert shown[5] == shown[6] == shown[7] == [1]
+    hidden = reported(False)
+    assert hidden[5] == [1] and hidden[6] == [] and hidden[7] == hidden[8] == [1]
+
+
 def test_the_state_is_one_aligned_record_per_hypothesis_moved_whole():
     """take and concat move every field of a row unchanged; every number is aligned."""
     from laser_tracker.core.tracking.state import Hypotheses, hypothesis_dtype

@@ -238,6 +238,13 @@ class HypothesisConfig:
     person_kind_samples: int = param(
         2, 'Supports by person detections after which a track is of kind person.', min=1,
         max=1000)
+    report_unseen: bool = param(
+        True, 'Report a confirmed track that nothing measured in this scan (no blob, person '
+        'detection or segment: it coasts on its velocity, hidden behind something or missed '
+        'by the detector), as leg_tracker\'s publish_occluded does. false: such a track is '
+        'reported as not confirmed until it is measured again (it lives on with its id): '
+        'fewer false positives against annotations of the people in view, but a person '
+        'hidden for a moment leaves tracks and the head.')
     segment_gate: float = param(
         0.5, 'A confirmed person\'s hypothesis with no supporting blob or person detection '
         'is supported by the nearest compact scan segment with a leg probability of at '
@@ -358,14 +365,16 @@ class HypothesisTracker:
                            created=sum(map(len, born)), bounded=bounded)
 
     def report(self, stamp: float) -> Tracks:
-        """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated)."""
+        """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated); with
+        ``report_unseen`` false a confirmed track that nothing measured at ``stamp`` (its
+        filter's ``t_state`` is older) is reported as not confirmed."""
         h, c = self.hyp, self.config
         speed2 = (h.velocity ** 2).sum(axis=1)
         return Tracks(stamp=float(stamp), track_id=h.track_id.copy(),
                       position=h.position.copy(), velocity=h.velocity.copy(),
                       covariance=self.filter.position_covariance(h.P, h.t_state, stamp),
                       weight=h.weight.copy(), samples=h.samples.copy(),
-                      confirmed=h.confirmed.copy(),
+                      confirmed=h.confirmed & (c.report_unseen | (h.t_state >= stamp)),
                       moving=(speed2 >= c.moving_speed ** 2) & ~h.stopped,
                       kind=np.where(h.is_person(c.person_kind_samples),
                                     'person', 'object').astype(object))
