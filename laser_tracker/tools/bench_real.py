@@ -64,8 +64,8 @@ NEGATIVE_SCANNERS = ('left', 'right', 'rear')
 #: Their scan topics in negative_2.bag.
 NEGATIVE_TOPICS = tuple(f'/{s}_scan' for s in NEGATIVE_SCANNERS)
 RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor',
-              'freiburg_other_noise', 'mit_csail', 'leg_demo') + tuple(f'negative_2_{s}{e}' for e in ('', '_inf')
-                                  for s in NEGATIVE_SCANNERS) + tuple(
+              'freiburg_other_noise', 'mit_csail', 'leg_demo') + tuple(
+    f'negative_2_{s}{e}' for e in ('', '_inf') for s in NEGATIVE_SCANNERS) + tuple(
     f'negative_2_{s}_unseen' for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
 #: Other scanners made of the recordings of one (its no-return readings as +inf): name, keep
 #: every so many beams, keep every so many scans. The leg_tracker robot's scanners (768 beams

@@ -53,7 +53,7 @@ def moved_more_than_the_view(c, candidates: Hypotheses, confirmed: Hypotheses,
     change that the changing viewpoint alone explains (parallax, beams that passed a static
     object before, registration error) is no evidence of motion."""
     h = candidates
-    world = np.hypot(*(h.position - h.start).T)
+    world, _ = _travel(h, frame)
     view = np.hypot(*(frame.scanner.to_scanner(h.start) - h.start_local).T)
     return (h.origin == PERSON) | (world >= c.view_travel_ratio * view)
 
