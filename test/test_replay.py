@@ -214,3 +214,50 @@ def test_an_output_folder_that_cannot_be_written_is_named(tmp_path, monkeypatch)
     monkeypatch.setattr('os.access', lambda path, mode: Path(path) != tmp_path)
     with pytest.raises(OutputPathError, match=f'no permission to write in {tmp_path}'):
         check_output(tmp_path / 'a' / 'new')
+
+
+def _odometry_as_tf(src, dst):
+    """``src`` rewritten as a recording whose odometry is only on /tf (REP 105: odom -> the
+    base frame, beside a map -> odom correction and another robot's odometry)."""
+    from laser_tracker.conversions import PlanarTransform, odometry_from_msg, transforms_to_msg
+    from laser_tracker.tools.bag import iter_messages, topics
+
+    with BagWriter(dst) as w:
+        for topic, t_ns, msg in iter_messages(src, list(topics(src))):
+            if topic != '/odom':
+                w.write(topic, msg, t_ns)
+                continue
+            o = odometry_from_msg(msg)
+            w.write('/tf', transforms_to_msg(FACTORY, [
+                PlanarTransform(o.stamp, 'map', 'odom', 5.0, -2.0, 1.0),
+                PlanarTransform(o.stamp, 'odom', 'other_robot', -o.x, o.y, 0.0),
+                PlanarTransform(o.stamp, 'odom', o.child_frame_id, o.x, o.y, o.theta)]), t_ns)
+    return dst
+
+
+def test_odometry_on_tf_is_used_when_the_recording_has_no_odometry_topic(tmp_path, capsys):
+    """A recording that carries its odometry only as odom -> base transforms on /tf (as ROS 1
+    robots record it) replays as the same recording with an Odometry topic does; a frame
+    named otherwise is not taken for odometry."""
+    src = REPO / 'bags' / 'driving_past_people'
+    with_topic = replay_bag(src, out_dir=tmp_path / 'topic', progress=False)
+    capsys.readouterr()
+    bag = _odometry_as_tf(src, tmp_path / 'tf_only')
+    with_tf = replay_bag(bag, out_dir=tmp_path / 'tf', progress=False)
+    assert 'odometry from /tf (odom -> base_link)' in capsys.readouterr().err
+    assert with_tf['odom_topic'] is None and with_tf['odom_tf'] == '/tf: odom -> base_link'
+    assert with_tf['odometry_messages'] == with_topic['odometry_messages'] > 0
+    assert with_tf['scanner_mount'] == with_topic['scanner_mount']
+    assert with_tf['scanner_mount']['source'] == '/tf_static'
+    assert with_tf['ego_motion_sources'] == with_topic['ego_motion_sources']
+    assert (tmp_path / 'tf' / 'ego_motion.csv').read_text() == \
+        (tmp_path / 'topic' / 'ego_motion.csv').read_text()
+    assert (tmp_path / 'tf' / 'tracks.csv').read_text() == \
+        (tmp_path / 'topic' / 'tracks.csv').read_text()
+
+    cfg = tmp_path / 'frame.yaml'
+    cfg.write_text('ego_motion:\n  ros__parameters:\n    odom_frame: wheels\n')
+    alone = replay_bag(bag, config=cfg, progress=False)
+    assert alone['odom_tf'] is None and alone['odometry_messages'] == 0
+    assert "no odometry on /odom or 'wheels' on /tf: ego-motion from scan matching alone" \
+        in capsys.readouterr().err

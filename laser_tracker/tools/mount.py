@@ -7,6 +7,10 @@ transform between them (``ego_motion.mount_x``, ``mount_y``, ``mount_yaw``): a s
 odometry prediction off by its lever arm as the robot turns. A recording usually carries the
 transform on ``/tf_static`` (or ``/tf``); :func:`recording_mount` finds it, composing a chain
 of frames if needed, and says where the mount came from.
+
+A recording without an Odometry topic may still carry the odometry as transforms on ``/tf``
+(REP 105: ``odom`` -> the base frame, which is how ROS 1 trackers such as leg_tracker read
+it); :func:`tf_odometry` finds that transform.
 """
 from __future__ import annotations
 
@@ -51,6 +55,48 @@ def _first_frames(path: Path, scan_topic: str, odom_topic: str | None):
     return scan_frame, base_frame
 
 
+@dataclass
+class TfOdometry:
+    """The odometry a recording carries on ``topic`` as transforms ``odom_frame`` ->
+    ``base_frame``."""
+    topic: str
+    odom_frame: str
+    base_frame: str
+
+
+def tf_odometry(path: str | Path, scan_topic: str, odom_frame: str) -> TfOdometry | None:
+    """The transform on ``/tf`` from ``odom_frame`` to a frame the scans' frame hangs from
+    (the scans' frame itself, or one it reaches through the other transforms without passing
+    ``odom_frame``); None when the recording has none."""
+    from laser_tracker.tools.bag import iter_messages, topics
+
+    path = Path(path)
+    odom_frame = odom_frame.lstrip('/')
+    info = topics(path)
+    dynamic = sorted(t for t, (typ, n) in info.items() if typ in TF_TYPES and n
+                     and t != '/tf_static')
+    if not dynamic:
+        return None
+    scan_frame, _ = _first_frames(path, scan_topic, None)
+    if not scan_frame:
+        return None
+    for topic in dynamic:
+        children: set[str] = set()
+        edges: dict = {}
+        for k, (_, _, msg) in enumerate(iter_messages(path, [topic, '/tf_static'])):
+            for tr in transforms_from_msg(msg):
+                if tr.parent == odom_frame:
+                    children.add(tr.child)
+                elif tr.child != odom_frame:
+                    edges.setdefault((tr.parent, tr.child), (tr.x, tr.y, tr.yaw))
+            for child in sorted(children):
+                if child == scan_frame or find_transform(edges, child, scan_frame) is not None:
+                    return TfOdometry(topic, odom_frame, child)
+            if k >= MAX_TF_MESSAGES:
+                break
+    return None
+
+
 def find_transform(edges: dict, source: str, target: str):
     """Pose of ``target`` in ``source`` from planar edges ``{(parent, child): (x, y, yaw)}``,
     following the frame tree in either direction; None if they are not connected."""
@@ -73,16 +119,19 @@ def find_transform(edges: dict, source: str, target: str):
 
 
 def recording_mount(path: str | Path, scan_topic: str, odom_topic: str | None,
-                    ego_config) -> Mount:
-    """The base -> scanner mount to use for a replay of ``path`` (see the module doc)."""
+                    ego_config, base_frame: str | None = None) -> Mount:
+    """The base -> scanner mount to use for a replay of ``path`` (see the module doc): of
+    the child frame of ``odom_topic``'s odometry, or of ``base_frame`` (odometry from
+    :func:`tf_odometry`)."""
     from laser_tracker.tools.bag import iter_messages, topics
 
     path = Path(path)
     configured = (ego_config.mount_x, ego_config.mount_y, ego_config.mount_yaw)
     has_config = any(v != 0.0 for v in configured)
-    if not odom_topic:
+    if not odom_topic and base_frame is None:
         return Mount(*configured, source='parameters (no odometry: the mount is not used)')
-    scan_frame, base_frame = _first_frames(path, scan_topic, odom_topic)
+    scan_frame, odom_base = _first_frames(path, scan_topic, odom_topic)
+    base_frame = base_frame or odom_base
     frames = {'base_frame': base_frame, 'scan_frame': scan_frame}
     if not scan_frame or not base_frame or scan_frame == base_frame:
         return Mount(*configured, source='parameters' if has_config else 'same frame',

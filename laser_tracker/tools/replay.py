@@ -24,7 +24,10 @@ differs from its odometry's child frame with no known mount gets a warning.
 
 ``--scan-topic`` must be a LaserScan topic of the recording and a given ``--odom-topic`` an
 Odometry topic (a relative name means ``/name``); otherwise the error lists the recording's
-topics of that type. A recording without ``/odom`` runs on scan matching alone (said once).
+topics of that type. A recording without an Odometry topic takes its odometry from ``/tf``
+when that carries the transform from the odometry frame (the ego_motion node's
+``odom_frame``, ``odom``) to the frame the scanner hangs from (REP 105, as ROS 1 trackers
+read it); without either it runs on scan matching alone (said once).
 A new ``--out`` folder is removed again when the replay fails or is interrupted. Bad input
 never stops the replay: malformed scans and odometry are skipped and counted (one line per
 reason at the end, no floods); a damaged recording ends the replay at the damage with the
@@ -48,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from laser_tracker import parameters
-from laser_tracker.conversions import odometry_from_msg, scan_from_msg
+from laser_tracker.conversions import odometry_from_msg, scan_from_msg, transforms_from_msg
 from laser_tracker.core import jit
 from laser_tracker.core.pipeline import STAGES, Pipeline, PipelineConfig
 from laser_tracker.core.scan import ScanError
@@ -77,7 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--scan-topic', default='/scan', help='LaserScan topic (default /scan)')
     parser.add_argument('--odom-topic',
                         help='Odometry topic (default /odom when the recording has it, else '
-                        'scan matching alone)')
+                        'the odom -> base transforms on /tf when it has them, else scan '
+                        'matching alone)')
     parser.add_argument('--figure-scan', type=int, metavar='K',
                         help='also draw grid / previous grid / difference / velocities for '
                         'scan K (0-based)')
@@ -163,21 +167,33 @@ def _check_evaluable(bag: Path) -> None:
                              '; record without --evaluate')
 
 
+def _odometry_poses(msg, tf_odom) -> list[tuple[float, np.ndarray]]:
+    """(stamp, pose) of the odometry in ``msg``: an Odometry message, or (``tf_odom``) the
+    transforms ``odom_frame`` -> ``base_frame`` of a TFMessage."""
+    if tf_odom is None:
+        odo = odometry_from_msg(msg)
+        return [(odo.stamp, odo.pose)]
+    return [(t.stamp, np.array([t.x, t.y, t.yaw])) for t in transforms_from_msg(msg)
+            if t.parent == tf_odom.odom_frame and t.child == tf_odom.base_frame]
+
+
 def _fmt(v: float) -> str:
     return f'{v:.6f}' if math.isfinite(v) else 'nan'
 
 
-def _configuration(config) -> tuple[PipelineConfig, float, dict]:
-    """(pipeline config, odom_wait, {node: {name: value}}) from what ``replay_bag`` accepts:
-    None (defaults), a PipelineConfig, loaded node parameters, or a parameter file path."""
+def _configuration(config) -> tuple[PipelineConfig, float, str, dict]:
+    """(pipeline config, odom_wait, odom_frame, {node: {name: value}}) from what
+    ``replay_bag`` accepts: None (defaults), a PipelineConfig, loaded node parameters, or a
+    parameter file path."""
     if config is None or isinstance(config, (str, Path)):
         config = parameters.load_files([config] if config is not None else [])
     if isinstance(config, PipelineConfig):
-        wait = parameters.EgoMotionNodeConfig().odom_wait
-        return config, wait, config.to_ros_params()
+        node = parameters.EgoMotionNodeConfig()
+        return config, node.odom_wait, node.odom_frame, config.to_ros_params()
     pipeline = parameters.pipeline_config(config)
-    wait = config['ego_motion'].sections[''].odom_wait
-    return pipeline, wait, {n: config[n].values() for n in parameters.REPLAY_NODES}
+    node = config['ego_motion'].sections['']
+    return (pipeline, node.odom_wait, node.odom_frame,
+            {n: config[n].values() for n in parameters.REPLAY_NODES})
 
 
 def replay_bag(bag_path, config=None, out_dir: Path | None = None,
@@ -190,7 +206,8 @@ def replay_bag(bag_path, config=None, out_dir: Path | None = None,
     ``config``: None (the defaults), a parameter file path, a PipelineConfig, or the result
     of ``parameters.load``. ``scan_topic`` and a given ``odom_topic`` must be topics of their
     type in the recording (InputFileError); without ``odom_topic``, ``/odom`` is used when the
-    recording has it, else scan matching alone (said on stderr). Without ``out_dir`` nothing is written (the summary is still
+    recording has it, else the odometry on ``/tf`` when it has that, else scan matching alone
+    (said on stderr). Without ``out_dir`` nothing is written (the summary is still
     returned). ``on_confirmed(stamp, track_id, x, y, vx, vy)`` is called once per track, when
     it is first confirmed (odometry frame). ``record`` (``tools.record.RecordOptions``): also
     write a recording of the run; its output is checked before the replay starts.
@@ -222,28 +239,37 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
     given."""
     from laser_tracker.tools.bag import (ODOM_TOPIC, ODOMETRY_MSGTYPE, SCAN_MSGTYPE,
                                          iter_messages, require_topic, topics)
-    from laser_tracker.tools.mount import recording_mount
+    from laser_tracker.tools.mount import recording_mount, tf_odometry
 
     bag_path = resolve_bag(bag_path)
-    config, odom_wait, node_values = _configuration(config)
+    config, odom_wait, odom_frame, node_values = _configuration(config)
     info = topics(bag_path)
     scan_topic = require_topic(bag_path, info, scan_topic, SCAN_MSGTYPE, '--scan-topic')
+    given_odom_topic = odom_topic is not None
     if odom_topic is not None or ODOM_TOPIC in info:
         odom_topic = require_topic(bag_path, info, odom_topic or ODOM_TOPIC, ODOMETRY_MSGTYPE,
                                    '--odom-topic')
     wanted = [scan_topic]
     has_odometry = odom_topic is not None and info[odom_topic][1] > 0
+    tf_odom = None
     if has_odometry:
         wanted.append(odom_topic)
-    else:
-        print(f'{bag_path.name}: no odometry on {odom_topic or ODOM_TOPIC}: ego-motion from '
-              'scan matching alone', file=sys.stderr)
+    elif not given_odom_topic:
+        tf_odom = tf_odometry(bag_path, scan_topic, odom_frame)
+    if tf_odom is not None:
+        wanted.append(tf_odom.topic)
+        print(f'{bag_path.name}: no Odometry topic: odometry from {tf_odom.topic} '
+              f'({tf_odom.odom_frame} -> {tf_odom.base_frame})', file=sys.stderr)
+    elif not has_odometry:
+        print(f'{bag_path.name}: no odometry on {odom_topic or ODOM_TOPIC}'
+              + ('' if given_odom_topic else f' or {odom_frame!r} on /tf')
+              + ': ego-motion from scan matching alone', file=sys.stderr)
     if out_dir is not None:           # an output that cannot be written fails before work
         out_dir = Path(out_dir)
         check_output(out_dir, overwrite=True)
         out_dir.mkdir(parents=True, exist_ok=True)
     mount = recording_mount(bag_path, scan_topic, odom_topic if has_odometry else None,
-                            config.ego_motion)
+                            config.ego_motion, tf_odom.base_frame if tf_odom else None)
     if mount.from_recording:
         config = dataclasses.replace(config, ego_motion=dataclasses.replace(
             config.ego_motion, mount_x=mount.x, mount_y=mount.y, mount_yaw=mount.yaw))
@@ -325,12 +351,13 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                     continue
                 if topic != scan_topic:
                     try:
-                        odo = odometry_from_msg(msg)
+                        poses = _odometry_poses(msg, tf_odom)
                     except Exception as exc:   # noqa: BLE001 - any malformed message
                         skipped_odometry[f'malformed: {type(exc).__name__}'] += 1
                         continue
-                    odometry_messages += 1
-                    process(pipeline.add_odometry(odo.stamp, odo.pose, arrival))
+                    for stamp, pose in poses:
+                        odometry_messages += 1
+                        process(pipeline.add_odometry(stamp, pose, arrival))
                     continue
                 scan_index += 1
                 jit.raise_deferred_interrupt()     # a Ctrl-C numba's compiler held back
@@ -366,6 +393,8 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
         'bag': str(bag_path),
         'scan_topic': scan_topic,
         'odom_topic': odom_topic if has_odometry else None,
+        'odom_tf': (f'{tf_odom.topic}: {tf_odom.odom_frame} -> {tf_odom.base_frame}'
+                    if tf_odom else None),
         'scans': scans_done,
         'scan_messages': scan_index + 1,
         'scans_skipped': dict(skipped),
