@@ -124,6 +124,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.resume_time': 0.0,     # a lost track's id is never resumed
         'hypotheses.duplicate_radius': 0.0,  # every hypothesis confirms after 4 samples
         'hypotheses.confirm_min_travel': 0.0,
+        'hypotheses.confirm_when_measured': False,  # confirmed on the m-th sample, as it comes
         'hypotheses.person_blob_gate': 0.0,  # every track takes blobs within the gate
         'hypotheses.new_when_ungated': False,  # Eq. 2 alone says which blob is new
         'hypotheses.confirm_time': 0.0,    # 4 samples, however short a time they span

@@ -203,3 +203,30 @@ def test_silent_beams_of_a_scanner_that_loses_echoes_free_little_on_the_real_rob
     and no track is confirmed; freeing what no_return_free allows confirms a false one."""
     assert _confirmed_with_inf('/right_scan') == 0
     assert _confirmed_with_inf('/right_scan', **{'grid.lost_echo_free': 100.0}) >= 1
+
+
+@pytest.mark.skipif(not NEGATIVE.exists(),
+                    reason='negative_2.bag is not under $LASER_TRACKER_DATA (README.md, "Data")')
+def test_the_real_robot_with_wheel_odometry_on_tf_confirms_nothing_but_the_rear_chair(
+        tmp_path):
+    """negative_2's scanners (+inf) with wheel odometry on /tf and the mounts on /tf_static,
+    six noise draws each (``bench real``'s ``negative_2_inf_odometry``): the replays take
+    both from the recording, and nothing is confirmed but the rear scanner's chair. Confirmed
+    while coasting (``confirm_when_measured: false``), clutter that flickered for a few
+    scans is confirmed on its last extrapolated frame in some of these draws."""
+    import json
+
+    from bench_rows import bench_real_row
+    from laser_tracker.tools import bench_real
+
+    row = bench_real_row(tmp_path, 'negative_2_inf_odometry', mode='defaults', jobs=2)
+    draws = len(bench_real.ODOMETRY_SEEDS)
+    assert len(row['false_by_part']) == 3 * draws
+    assert row['false_by_part'][:2 * draws] == [0] * (2 * draws)       # left, right
+    assert max(row['false_by_part'][2 * draws:]) <= 1                   # rear: the chair
+    summary = json.loads((tmp_path / 'work' / 'negative_2_inf_odometry_0_defaults'
+                          / 'summary.json').read_text())
+    assert summary['odom_tf'] == '/tf: odom -> base_link'
+    assert summary['scanner_mount']['source'] == '/tf_static'
+    assert summary['scanner_mount']['yaw'] == pytest.approx(math.pi / 4)
+    assert summary['ego_motion_sources'].get('icp', 0) >= 0.9 * summary['scans']

@@ -511,6 +511,21 @@ def test_each_further_confirmation_rule_holds_back_until_it_is_met():
     assert confirmed_after(HypothesisConfig(confirm_min_speed=0.5), speed=0.6) == 4
 
 
+@pytest.mark.parametrize('when_measured, confirmed_at', [(False, 6), (True, 7)])
+def test_a_hypothesis_is_confirmed_on_a_measurement_not_while_it_coasts(when_measured,
+                                                                         confirmed_at):
+    """4 samples by frame 4 (0.8 s), ``confirm_time`` 1 s met at frame 6 while the blob is
+    missed (frames 5 and 6): with ``confirm_when_measured`` it waits for the blob's return."""
+    tr = HypothesisTracker(HypothesisConfig(confirm_time=1.0, confirm_min_travel=0.0,
+                                            confirm_when_measured=when_measured),
+                           KalmanConfig())
+    found = []
+    for k in range(9):
+        blobs = [] if k in (5, 6) else [(1.0 + k * DT, 0.0)]
+        found += [k] * tr.update(frame(k * DT, *blobs)).newly_confirmed.size
+    assert found == [confirmed_at]
+
+
 def test_coast_grace_spares_a_new_hypothesis_a_missed_scan():
     def survives(grace):
         tr = HypothesisTracker(HypothesisConfig(coast_grace=grace), KalmanConfig())

@@ -261,3 +261,31 @@ def test_odometry_on_tf_is_used_when_the_recording_has_no_odometry_topic(tmp_pat
     assert alone['odom_tf'] is None and alone['odometry_messages'] == 0
     assert "no odometry on /odom or 'wheels' on /tf: ego-motion from scan matching alone" \
         in capsys.readouterr().err
+
+
+def test_a_recording_rewritten_with_wheel_odometry_on_tf_keeps_its_other_topics(tmp_path):
+    """``bench real``'s odometry rows: the scans as /scan, the annotations kept, the
+    recording's own odometry replaced by odom -> base_link on /tf at the odometry rate
+    (following the scanner poses a replay finds) and the mount on /tf_static."""
+    from laser_tracker.tools import bench_real
+    from laser_tracker.tools.bag import read_scans, topics
+
+    src = REPO / 'bags' / 'driving_past_people'
+    mount = (0.25, -0.2, -0.5)
+    dst = tmp_path / 'with_odometry'
+    bench_real.write_with_wheel_odometry(src, '/scan', dst, mount, tmp_path / 'icp', seed=3)
+    before, after = topics(src), topics(dst)
+    assert set(after) == {'/scan', '/ground_truth', '/tf', '/tf_static'}
+    assert after['/scan'][1] == before['/scan'][1]
+    assert after['/ground_truth'][1] == before['/ground_truth'][1]
+    scans = list(read_scans(dst))
+    duration = scans[-1].stamp - scans[0].stamp
+    assert after['/tf'][1] == pytest.approx(duration * bench_real.ODOMETRY_RATE, abs=2)
+    summary = replay_bag(dst, out_dir=tmp_path / 'out', progress=False)
+    assert summary['odom_tf'] == '/tf: odom -> base_link'
+    m = summary['scanner_mount']
+    assert (m['source'], m['x'], m['y'], m['yaw']) == ('/tf_static', *mount)
+    reference = np.loadtxt(tmp_path / 'icp' / 'ego_motion.csv', delimiter=',', skiprows=1)
+    replayed = np.loadtxt(tmp_path / 'out' / 'ego_motion.csv', delimiter=',', skiprows=1)
+    steps = [np.hypot(*np.diff(poses[:, 1:3], axis=0).T) for poses in (reference, replayed)]
+    assert steps[1].sum() == pytest.approx(steps[0].sum(), rel=0.02)      # the same drive

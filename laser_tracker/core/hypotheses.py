@@ -40,7 +40,7 @@ deletion, confirmation):
     measurement), each supporting blob adds one. Further rules (``core.tracking
     .confirmation``), each off at 0: ``person_min_travel`` / ``person_confirm_samples``,
     ``view_travel_ratio``, ``ride_along_speed``, ``confirm_time``, ``confirm_min_speed``,
-    ``confirm_min_travel``, ``duplicate_radius``.
+    ``confirm_min_travel``, ``duplicate_radius``, ``confirm_when_measured``.
 
 Beyond the paper, person detections are measurements of their own kind (``person_*``), and
 a confirmed track without support is held on a scan segment (``segment_gate``,
@@ -140,6 +140,11 @@ class HypothesisConfig:
                                       'scan-match error at range) stays within a few cells '
                                       '(people have their own rules). 0 = paper.', min=0.0,
                                       max=100.0)
+    confirm_when_measured: bool = param(
+        True, 'A hypothesis is confirmed only in a frame where a blob or a person detection '
+        'supports it: the further rules (time, travel) are judged on a measured position, '
+        'not on one extrapolated along a velocity while it coasts. false = paper (whose 4 '
+        'samples are reached on a measurement anyway).')
     merge_distance: float = param(0.3, 'Hypotheses closer than this (m) ...', min=0.0,
                                   max=10.0)
     merge_speed: float = param(0.5, '... whose velocities differ by less than this (m/s) are '

@@ -33,9 +33,16 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
   recorded them, every second beam (0.7 deg apart) or every second scan (3.75 Hz); the three
   scanners of ``negative_2`` in one row. What a default that counts beams or scans depends
   on;
+* ``negative_2_inf_odometry``: the same three scanners (no-return readings as +inf) with
+  wheel odometry on /tf and the scanner's mount on /tf_static, as a robot with odometry
+  records them (the odometry: the scanner poses of a replay on scan matching alone, moved to
+  a base the scanner sits on, with six draws of realistic noise: eighteen replays in one
+  row); the odometry path and the mount, on real scans;
 * ``leg_scenes_driving_inf``: the people of each positive recording put into the scans of
   one scanner of ``negative_2`` (``tools.driving_scenes``): real legs around a robot that
-  drives through a real building, scored as the leg scenes, pooled over the six.
+  drives through a real building, scored as the leg scenes, pooled over the six;
+  ``leg_scenes_driving_inf_odometry``: the same scenes with wheel odometry and the mount on
+  /tf (as ``negative_2_inf_odometry``; three draws, pooled).
 
 What is not present is reported as missing, never failed. It takes a few minutes
 (``--jobs 2`` on a free 2-core machine halves it).
@@ -73,7 +80,16 @@ RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor',
 #: rate (3.75 Hz): what a default that counts scans or beams depends on.
 OTHER_SCANNERS = (('half_beams', 2, 1), ('half_rate', 1, 2))
 RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf')
-                    for name, _, _ in OTHER_SCANNERS) + ('leg_scenes_driving_inf',)
+                    for name, _, _ in OTHER_SCANNERS) + (
+    'negative_2_inf_odometry', 'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry')
+#: ``negative_2_inf_odometry``: where each scanner is taken to sit on the base (x, y, yaw),
+#: as on a robot with two front corner scanners turned outwards and one facing back, and the
+#: rate (Hz), noise model and draws (one replay each) of the wheel odometry made for it.
+ODOMETRY_MOUNTS = {'left': (0.25, 0.2, math.pi / 4), 'right': (0.25, -0.2, -math.pi / 4),
+                   'rear': (-0.25, 0.0, math.pi)}
+ODOMETRY_RATE, ODOMETRY_NOISE, ODOMETRY_SEEDS = 20.0, 'realistic', (0, 1, 2, 3, 4, 5)
+#: The draws of ``leg_scenes_driving_inf_odometry`` (each its six scenes, pooled).
+SCENE_ODOMETRY_SEEDS = (0, 1, 2)
 #: The odometry noise models of the Freiburg rows, and the seeds of ``freiburg_other_noise``
 #: (the single rows draw seed 0).
 FREIBURG_NOISE = ('realistic', 'poor')
@@ -250,19 +266,34 @@ def _write_scene(k: int, src: Path, scene: Path, **variant) -> dict:
 def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
     """``leg_scenes_driving_inf`` -> [(scene bag, scoring extras)]: the people of each
     positive recording in the scans of one scanner of ``negative_2`` (in turn: left, right,
-    rear; ``tools.driving_scenes``)."""
+    rear; ``tools.driving_scenes``); ``leg_scenes_driving_inf_odometry``: the same scenes
+    with wheel odometry and the mount on /tf, as ``negative_2_inf_odometry``."""
     from laser_tracker.tools import driving_scenes, leg_scenes
 
     negative = real_recording('leg_tracker/training/negative_2.bag')
-    if 'leg_scenes_driving_inf' not in names or not negative.exists() \
-            or not leg_scenes.positive_recordings():
+    if not {'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry'} & set(names) \
+            or not negative.exists() or not leg_scenes.positive_recordings():
         return {}
 
     def write(k, src, scene):
         topic = NEGATIVE_TOPICS[k % len(NEGATIVE_TOPICS)]
         return driving_scenes.write_driving_scene(src, negative, topic, scene)
 
-    return {'leg_scenes_driving_inf': _scene_parts(work, '_driving_inf', write, with_detector)}
+    def with_odometry(k, src, scene, seed):
+        plain, _ = parts[k]
+        s = NEGATIVE_SCANNERS[k % len(NEGATIVE_SCANNERS)]
+        write_with_wheel_odometry(plain, '/scan', scene, ODOMETRY_MOUNTS[s],
+                                  plain.with_name(plain.name + '_icp'), seed)
+        return json.loads(plain.with_suffix('.json').read_text())
+
+    parts = _scene_parts(work, '_driving_inf', write, with_detector)
+    found = {'leg_scenes_driving_inf': parts} if 'leg_scenes_driving_inf' in names else {}
+    if 'leg_scenes_driving_inf_odometry' in names:
+        found['leg_scenes_driving_inf_odometry'] = [
+            part for seed in SCENE_ODOMETRY_SEEDS for part in _scene_parts(
+                work, f'_driving_inf_odometry_seed{seed}',
+                functools.partial(with_odometry, seed=seed), with_detector)]
+    return found
 
 
 def _other_scanners(work: Path, names) -> dict:
@@ -278,6 +309,79 @@ def _other_scanners(work: Path, names) -> dict:
                 rewrite_scans(negative, bag, NEGATIVE_TOPICS, beam_step, scan_step)
             found[name] = [(bag, t) for t in NEGATIVE_TOPICS]
     return found
+
+
+def _with_odometry(work: Path, names) -> dict:
+    """``negative_2_inf_odometry`` -> [(bag, scan topic)]: each scanner of ``negative_2``
+    (no-return readings as +inf) as a robot with wheel odometry records it: the scanner
+    poses of a replay on scan matching alone, as the poses of a base it sits on at
+    ``ODOMETRY_MOUNTS``, with ``ODOMETRY_NOISE`` odometry noise at ``ODOMETRY_RATE`` on /tf
+    (odom -> base_link, one recording per draw of ``ODOMETRY_SEEDS``) and the mount on
+    /tf_static."""
+    name = 'negative_2_inf_odometry'
+    negative = real_recording('leg_tracker/training/negative_2.bag')
+    if name not in names or not negative.exists():
+        return {}
+    inf = work / 'negative_2_inf'
+    if not inf.exists():
+        rewrite_scans(negative, inf, NEGATIVE_TOPICS)
+    parts = []
+    for s, topic in zip(NEGATIVE_SCANNERS, NEGATIVE_TOPICS):
+        for seed in ODOMETRY_SEEDS:
+            bag = work / f'{name}_{s}_seed{seed}'
+            if not bag.exists():
+                write_with_wheel_odometry(inf, topic, bag, ODOMETRY_MOUNTS[s],
+                                          work / f'{name}_{s}_icp', seed)
+            parts.append((bag, '/scan'))
+    return {name: parts}
+
+
+def write_with_wheel_odometry(src: Path, topic: str, dst: Path, mount, reference: Path,
+                              seed: int = 0) -> None:
+    """``src``'s scans on ``topic`` as ``/scan`` in ``dst`` (with its topics that are not
+    scans, odometry or transforms: annotations), and wheel odometry on /tf made from the
+    scanner poses a replay on scan matching alone finds (kept in ``reference``): the base
+    the scanner sits on at ``mount`` follows them, and its odometry (``ODOMETRY_NOISE``,
+    drawn with ``seed``) is sampled at ``ODOMETRY_RATE``, received 5 ms after its stamp; the
+    mount is on /tf_static."""
+    from laser_tracker.conversions import PlanarTransform, transforms_to_msg
+    from laser_tracker.core.geometry import compose, inverse
+    from laser_tracker.tools.annotations import register_person_type
+    from laser_tracker.tools.bag import (FACTORY, LATCHED_QOS, ODOMETRY_MSGTYPE,
+                                         SCAN_MSGTYPE, TYPESTORE, BagWriter, iter_messages,
+                                         topics)
+    from laser_tracker.tools.mount import TF_TYPES
+    from laser_tracker.tools.odometry_noise import noisy_odometry
+    from laser_tracker.tools.replay import replay_bag
+
+    if not (reference / 'ego_motion.csv').exists():
+        replay_bag(src, config=mode_parameters('defaults'), out_dir=reference,
+                   scan_topic=topic, progress=False)
+    poses = np.loadtxt(reference / 'ego_motion.csv', delimiter=',', skiprows=1, ndmin=2)
+    poses = poses[np.isfinite(poses).all(axis=1)]
+    stamps = np.arange(poses[0, 0], poses[-1, 0], 1.0 / ODOMETRY_RATE)
+    heading = np.unwrap(poses[:, 3])
+    scanner = np.column_stack([np.interp(stamps, poses[:, 0], v)
+                               for v in (poses[:, 1], poses[:, 2], heading)])
+    to_base = inverse(np.asarray(mount, float))
+    odometry = noisy_odometry(np.array([compose(p, to_base) for p in scanner]),
+                              ODOMETRY_NOISE, seed)
+    register_person_type(TYPESTORE)
+    replaced = (SCAN_MSGTYPE, ODOMETRY_MSGTYPE) + TF_TYPES
+    kept = [topic] + [t for t, (kind, _) in topics(src).items() if kind not in replaced]
+    messages = list(iter_messages(src, kept))
+    frame = next(str(msg.header.frame_id) for t, _, msg in messages if t == topic)
+    events = [(t_ns, '/scan' if t == topic else t, msg) for t, t_ns, msg in messages] + [
+        (int(round((t + 0.005) * 1e9)), '/tf', transforms_to_msg(
+            FACTORY, [PlanarTransform(float(t), 'odom', 'base_link', *pose)]))
+        for t, pose in zip(stamps, odometry)]
+    events.sort(key=lambda e: e[0])
+    with BagWriter(dst) as bag:
+        bag.write('/tf_static', transforms_to_msg(
+            FACTORY, [PlanarTransform(0.0, 'base_link', frame, *mount)]), events[0][0] - 1,
+            qos=LATCHED_QOS)
+        for t_ns, name, msg in events:
+            bag.write(name, msg, t_ns)
 
 
 def score(name: str, bag: Path, scan_topic: str, scoring: str, config, out: Path,
@@ -404,6 +508,8 @@ def run(args: argparse.Namespace) -> int:
                       for n, (bag, topic, extra) in _unseen_negatives(names, detector).items()})
         found.update({n: [(bag, topic, 'negative', None) for bag, topic in parts]
                       for n, parts in _other_scanners(work, names).items()})
+        found.update({n: [(bag, topic, 'negative', None) for bag, topic in parts]
+                      for n, parts in _with_odometry(work, names).items()})
         found.update({n: [(bag, '/scan', 'reference', None) for bag in parts]
                       for n, parts in _other_noise(work, names).items()})
         jobs = []

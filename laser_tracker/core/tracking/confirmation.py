@@ -112,9 +112,17 @@ def not_a_duplicate(c, candidates: Hypotheses, confirmed: Hypotheses,
              <= c.duplicate_radius).any(axis=1)
 
 
-#: The further rules, each with the parameter that switches it on (above 0).
-RULES = ((walked, 'person_min_travel'), (moved_more_than_the_view, 'view_travel_ratio'),
-         (not_riding_along, 'ride_along_speed'),
+def measured(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
+    """Supported by a blob or a person detection in this frame: while a hypothesis coasts
+    its position is extrapolated along its velocity, so the travel and time it reaches then
+    are no evidence (clutter that flickered for a few scans is confirmed on its last
+    extrapolated frame otherwise)."""
+    return candidates.supported.copy()
+
+
+#: The further rules, each with the parameter that switches it on (above 0, or true).
+RULES = ((measured, 'confirm_when_measured'), (walked, 'person_min_travel'),
+         (moved_more_than_the_view, 'view_travel_ratio'), (not_riding_along, 'ride_along_speed'),
          (old_enough, 'confirm_time'), (fast_enough, 'confirm_min_speed'),
          (travelled, 'confirm_min_travel'), (not_a_duplicate, 'duplicate_radius'))
 
