@@ -3,6 +3,7 @@ evaluate/demo commands use, and bad recordings that must not stop it."""
 from __future__ import annotations
 
 import csv
+import logging
 import json
 import math
 from pathlib import Path
@@ -289,3 +290,29 @@ def test_a_recording_rewritten_with_wheel_odometry_on_tf_keeps_its_other_topics(
     replayed = np.loadtxt(tmp_path / 'out' / 'ego_motion.csv', delimiter=',', skiprows=1)
     steps = [np.hypot(*np.diff(poses[:, 1:3], axis=0).T) for poses in (reference, replayed)]
     assert steps[1].sum() == pytest.approx(steps[0].sum(), rel=0.02)      # the same drive
+
+
+@pytest.mark.parametrize('offset', [-130.0, 130.0])
+def test_odometry_stamped_by_another_clock_is_read_on_the_scans_clock(tmp_path, offset, caplog):
+    """The odometry of the bundled drive stamped ``offset`` s off the scans' clock (a scanner
+    that stamps with its own time): found from the arrivals, said once, and the odometry
+    prior is used again after the first scans, as on the recording itself."""
+    from laser_tracker.tools.bag import iter_messages, topics
+
+    src = REPO / 'bags' / 'driving_past_people'
+    bag = tmp_path / 'shifted'
+    with BagWriter(bag) as w:
+        for topic, t_ns, msg in iter_messages(src, list(topics(src))):
+            if topic == '/odom':
+                ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + int(offset * 1e9)
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 10**9)
+            w.write(topic, msg, t_ns)
+    as_recorded = replay_bag(src, progress=False)
+    with caplog.at_level(logging.WARNING):
+        shifted = replay_bag(bag, progress=False)
+    events = shifted['events']['ego_motion']
+    assert events['odometry clock'] == 1
+    said = [r.message for r in caplog.records if 'odometry clock' in r.message]
+    assert len(said) == 1 and f"stamps are {'+' if offset > 0 else '-'}1" in said[0]
+    assert events.get('note: no odometry', 0) <= 6                 # the first scans only
+    assert shifted['confirmed_tracks'] <= as_recorded['confirmed_tracks'] + 1

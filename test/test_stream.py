@@ -1,5 +1,7 @@
 """Scans wait for the odometry that covers them, but never for an absent odometry stream."""
-from laser_tracker.core.stream import OdometryWait
+import pytest
+
+from laser_tracker.core.stream import ClockOffset, OdometryWait
 
 
 def test_scan_is_held_until_odometry_stamped_after_it_arrives():
@@ -38,3 +40,35 @@ def test_without_odometry_scans_pass_at_once():
     assert wait.add_scan(0.4, 0.4, 'c') == []       # odometry flowing again: wait for it
     assert wait.release(2.0) == ['c']
     assert wait.add_scan(2.5, 2.5, 'd') == ['d']    # odometry stopped 2.2 s ago
+
+
+def _feed(clocks, n, scan_ahead, start=0):
+    """``n`` scans at 10 Hz and odometry at 50 Hz arriving 10 ms after their stamps, the
+    scans stamped ``scan_ahead`` s ahead of the odometry's clock; the changes reported."""
+    changes = []
+    for k in range(start, start + n):
+        t = 0.1 * k
+        for j in range(5):
+            changes.append(clocks.add_odometry(t + 0.02 * j, t + 0.02 * j + 0.01))
+        changes.append(clocks.add_scan(t + scan_ahead, t + 0.015))
+    return sum(changes)
+
+
+@pytest.mark.parametrize('scan_ahead, offset', [(0.0, 0.0), (1.5, 0.0), (130.0, 130.0),
+                                                (-42.0, -42.0)])
+def test_a_clock_offset_is_found_from_arrivals_beyond_any_latency(scan_ahead, offset):
+    """Stamps that differ from the arrival of the other stream's by more than the tolerance
+    (2 s) are of another clock: the offset, to within the transport delays; less is a
+    latency (``odom_latency``), left alone."""
+    clocks = ClockOffset(2.0, window=5)
+    assert _feed(clocks, 3, scan_ahead) == 0 and clocks.offset == 0.0   # too few scans yet
+    changes = _feed(clocks, 20, scan_ahead, start=3)
+    assert clocks.offset == pytest.approx(offset, abs=0.01)
+    assert changes == (1 if offset else 0)                      # said once
+
+
+def test_a_clock_offset_that_goes_away_is_dropped():
+    clocks = ClockOffset(2.0, window=5)
+    _feed(clocks, 10, 60.0)
+    assert clocks.offset == pytest.approx(60.0, abs=0.01)
+    assert _feed(clocks, 10, 0.0, start=10) == 1 and clocks.offset == 0.0

@@ -54,13 +54,16 @@ from laser_tracker.core.person_detector import (DetectorModelError, LegClassifie
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig, segments_of
 from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig, without_body
-from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, EventLog, OdometryWait,
-                                       StreamRules)
+from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, ClockOffset, EventLog,
+                                       OdometryWait, StreamRules)
 
 log = logging.getLogger(__name__)
 
 #: Scan points this close (m) to a motion blob do not join the static background.
 MOVER_RADIUS = 0.4
+#: Odometry and scans whose stamps, against their arrival, differ by more than this (s: the
+#: range of ``ego_motion.odom_latency``) are of different clocks.
+CLOCK_TOLERANCE = 2.0
 
 
 # ------------------------------------------------------------------------------ ego-motion
@@ -117,6 +120,7 @@ class EgoMotion:
         self.estimator = EgoMotionEstimator(self.config, self.self_mask)
         self.rules = StreamRules()
         self.wait: OdometryWait = OdometryWait(odom_wait)
+        self.clocks = ClockOffset(CLOCK_TOLERANCE)
         self.sources: dict[str, int] = {}
         self._restart_pending = False
         self.skipped: str | None = None     # why the last update returned None
@@ -131,14 +135,36 @@ class EgoMotion:
             self.events.note('odometry skipped', f'not a finite planar pose: {stamp!r}, '
                              f'{list(xyt) if xyt else np.asarray(pose).tolist()!r}')
             return []
-        self.estimator.add_finite_odometry(float(stamp), *xyt)
+        stamp = float(stamp)
+        if arrival is not None:
+            if self.clocks.add_odometry(stamp, arrival):
+                self._clock_changed()
+            stamp += self.clocks.offset
+        self.estimator.add_finite_odometry(stamp, *xyt)
         if arrival is None:
             return []
-        return self._estimate_all(self.wait.add_odometry(arrival, float(stamp)))
+        return self._estimate_all(self.wait.add_odometry(arrival, stamp))
+
+    def _clock_changed(self) -> None:
+        """The odometry's clock is found to differ from the scans' (``ClockOffset``): its
+        stamps are moved onto the scans' clock from now on, and the samples stored before are
+        forgotten."""
+        offset = self.clocks.offset
+        self.estimator.odometry.clear()
+        self.wait.forget_odometry()
+        if offset:
+            self.events.note('odometry clock', f'odometry stamps are {-offset:+.3f} s from '
+                             "the scans' (against their arrival): another clock; read on the "
+                             "scans' clock from now on")
+        else:
+            self.events.note('odometry clock', "odometry stamps agree with the scans' again")
 
     def add_scan(self, scan: Scan, arrival: float | None = None, tag=None) -> list:
         """Queue ``scan`` behind its odometry; returns ``(scan, tag, pose or None)`` of every
         scan that is ready (``tag`` travels with the scan, for the caller)."""
+        if arrival is not None and math.isfinite(scan.stamp) \
+                and self.clocks.add_scan(scan.stamp, arrival):
+            self._clock_changed()
         if arrival is None or self.wait.max_wait <= 0.0:
             return [(scan, tag, self.update(scan))]
         return self._estimate_all(self.wait.add_scan(arrival, scan.stamp, (scan, tag)))

@@ -16,8 +16,9 @@ Everything unusual is counted and logged through an :class:`EventLog`: the first
 of a reason at once, then at the 10th, 100th, ... (no floods), and all counts for summaries.
 
 Also here: :class:`OdometryWait` (a scan waits for the odometry that covers it, paper Sec. 3:
-odometry arrives late and jittered) and :class:`StampPairer` (joins streams that carry the
-same stamps, e.g. a scan and its pose).
+odometry arrives late and jittered), :class:`ClockOffset` (odometry stamped by another clock
+than the scans) and :class:`StampPairer` (joins streams that carry the same stamps, e.g. a
+scan and its pose).
 """
 from __future__ import annotations
 
@@ -134,6 +135,11 @@ class OdometryWait(Generic[T]):
         self._stalled = False
         return self.release(arrival)
 
+    def forget_odometry(self) -> None:
+        """The odometry's stamps so far are void (read on another clock): held scans wait for
+        the next sample."""
+        self._odometry_stamp = -math.inf
+
     def release(self, now: float) -> list[T]:
         """Items whose odometry has arrived or whose wait is over at time ``now``."""
         ready = []
@@ -155,6 +161,58 @@ class OdometryWait(Generic[T]):
         items = [item for _, _, item in self._pending]
         self._pending.clear()
         return items
+
+
+class ClockOffset:
+    """How far the scans' clock is ahead of the odometry's, from when their messages arrive.
+
+    Each stream's stamp minus its arrival time is that stream's clock against the receiving
+    one (plus a transport delay of milliseconds). When the medians of the last ``window``
+    messages of each stream differ by more than ``tolerance`` seconds, the stamps come from
+    different clocks (a scanner stamping with its own time, another computer): no latency
+    explains that, and without the difference no odometry sample would ever lie near a
+    scan. :attr:`offset` is then that difference (add it to an odometry stamp), else 0. It
+    needs ``window`` messages of each stream; it is recomputed on each message.
+    """
+
+    def __init__(self, tolerance: float, window: int = 5):
+        self.tolerance = float(tolerance)
+        self._scans: deque[float] = deque(maxlen=window)
+        self._odometry: deque[float] = deque(maxlen=window)
+        self.offset = 0.0
+
+    def reset(self) -> None:
+        self._scans.clear()
+        self._odometry.clear()
+        self.offset = 0.0
+
+    def add_scan(self, stamp: float, arrival: float) -> bool:
+        """Note a scan; True when the offset changed."""
+        self._scans.append(stamp - arrival)
+        return self._update()
+
+    def add_odometry(self, stamp: float, arrival: float) -> bool:
+        """Note an odometry sample (its own stamp); True when the offset changed."""
+        self._odometry.append(stamp - arrival)
+        return self._update()
+
+    def _update(self) -> bool:
+        if len(self._scans) < self._scans.maxlen or \
+                len(self._odometry) < self._odometry.maxlen:
+            return False
+        difference = _median(self._scans) - _median(self._odometry)
+        offset = difference if abs(difference) > self.tolerance else 0.0
+        changed = abs(offset - self.offset) > self.tolerance
+        if changed or (offset == 0.0) != (self.offset == 0.0):
+            self.offset = offset
+            return True
+        return False
+
+
+def _median(values) -> float:
+    ordered = sorted(values)
+    n = len(ordered)
+    return 0.5 * (ordered[(n - 1) // 2] + ordered[n // 2])
 
 
 class StampPairer:
