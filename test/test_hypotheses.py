@@ -319,16 +319,17 @@ def test_a_person_detected_long_enough_is_confirmed_without_walking(confirm_samp
     assert confirmed_at == (confirm_samples or None)
 
 
-def lose_and_find(cfg, speed=0.5, hidden=4, frames=20):
+def lose_and_find(cfg, speed=0.5, hidden=4, frames=20, side=0.0):
     """A blob walks at ``speed`` m/s, is confirmed, is hidden for ``hidden`` frames (its
-    hypothesis fades and is removed), then walks on: the ids of the confirmed tracks before
-    and after."""
+    hypothesis fades and is removed), then walks on (``side`` m to the side of its way):
+    the ids of the confirmed tracks before and after."""
     tr = HypothesisTracker(cfg, KalmanConfig())
     before, after = set(), set()
     for k in range(frames):
         t = k * DT
         seen = not (8 <= k < 8 + hidden)
-        res = tr.update(frame(t, (1.0 + speed * t, 0.0)) if seen else frame(t))
+        y = side if k >= 8 + hidden else 0.0
+        res = tr.update(frame(t, (1.0 + speed * t, y)) if seen else frame(t))
         h = res.hypotheses
         ids = set(h.track_id[h.confirmed].tolist())
         if k < 8:
@@ -347,11 +348,20 @@ def test_a_track_lost_for_a_moment_resumes_its_id():
     assert len(before) == 1 and after == before
 
 
-@pytest.mark.parametrize('change', [{'resume_time': 0.0}, {'resume_radius': 0.3},
-                                    {'resume_time': 0.5}])
-def test_a_track_found_too_late_or_too_far_gets_a_new_id(change):
+def test_a_track_that_walked_on_while_lost_resumes_its_id_on_its_way():
+    """Hidden for 1.2 s at 1 m/s, the target is found again farther than ``resume_radius``
+    from where its track was lost, but on the way its velocity took it."""
+    cfg = HypothesisConfig(resume_time=2.0, resume_radius=0.5)
+    before, after = lose_and_find(cfg, speed=1.0, hidden=6)
+    assert len(before) == 1 and after == before
+
+
+@pytest.mark.parametrize('change, side', [({'resume_time': 0.0}, 0.0),
+                                          ({'resume_radius': 0.3}, 0.6),
+                                          ({'resume_time': 0.5}, 0.0)])
+def test_a_track_found_too_late_or_too_far_gets_a_new_id(change, side):
     cfg = HypothesisConfig(**{'resume_time': 2.0, 'resume_radius': 1.0, **change})
-    before, after = lose_and_find(cfg)
+    before, after = lose_and_find(cfg, side=side)
     assert len(before) == 1 and len(after) == 1 and after != before
 
 

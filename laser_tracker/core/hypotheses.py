@@ -267,12 +267,13 @@ class HypothesisConfig:
         'the object stands: its velocity is measured as zero.', min=0.0, max=2.0)
     resume_time: float = param(
         2.0, 'A hypothesis confirmed within this time (s) of the loss of a confirmed track of '
-        'the same kind, within resume_radius of where that track was last seen, takes its '
-        'id: a target lost for a moment (missed, hidden) keeps its identity. 0 = off.',
+        'the same kind, within resume_radius of that track\'s way since (from where it was '
+        'last seen, on along its last velocity: it walked on or stopped), takes its id: a '
+        'target lost for a moment (missed, hidden) keeps its identity. 0 = off.',
         min=0.0, max=60.0)
     resume_radius: float = param(
-        1.0, 'Largest distance (m) between a lost track\'s last position and a newly '
-        'confirmed hypothesis that resumes it (resume_time).', min=0.0, max=10.0)
+        1.0, 'Largest distance (m) between a lost track\'s way since it was lost and a '
+        'newly confirmed hypothesis that resumes it (resume_time).', min=0.0, max=10.0)
     duplicate_radius: float = param(
         0.3, 'A hypothesis within this distance (m) of a confirmed track is not confirmed: '
         'it duplicates that track (the two follow the same legs) and merges into it, so '

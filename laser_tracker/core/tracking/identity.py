@@ -11,8 +11,10 @@
   person whose leg hypotheses split and merge again keeps one id.
 * **Resume** (``resume_time``, beyond the paper): a hypothesis confirmed within
   ``resume_time`` of the loss of a confirmed track of the same kind, within
-  ``resume_radius`` of where that track was last seen, takes its id (nearest pairs first,
-  each lost track once): a target lost for a moment keeps its identity.
+  ``resume_radius`` of that track's way since (from where it was last seen, on along its
+  last velocity for the time since: it walked on or stopped somewhere on the way), takes
+  its id (nearest pairs first, each lost track once): a target lost for a moment keeps its
+  identity.
 """
 from __future__ import annotations
 
@@ -20,14 +22,13 @@ import numpy as np
 
 from laser_tracker.core import jit
 from laser_tracker.core.blobs import _root
-from laser_tracker.core.geometry import pairwise_distances
 from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import MOTION, PERSON, Hypotheses
 
-#: A confirmed track lost recently (``resume_time``): its id, when and where it was lost, and
-#: whether it was a person.
+#: A confirmed track lost recently (``resume_time``): its id, when and where it was lost, its
+#: velocity then, and whether it was a person.
 LOST = np.dtype([('track_id', np.int64), ('stamp', np.float64), ('position', np.float64, (2,)),
-                 ('person', np.bool_)])
+                 ('velocity', np.float64, (2,)), ('person', np.bool_)])
 
 
 class Identity(Role):
@@ -96,6 +97,7 @@ class Identity(Role):
         if len(gone):
             rows = np.zeros(len(gone), LOST)
             rows['track_id'], rows['stamp'], rows['position'] = gone.track_id, t, gone.position
+            rows['velocity'] = gone.velocity
             rows['person'] = gone.is_person(c.person_kind_samples)
             lost = np.concatenate((lost, rows))
         self.lost = lost[-c.max_hypotheses:]
@@ -111,7 +113,8 @@ class Identity(Role):
             self.lost = lost
             return
         person = hyp.is_person(c.person_kind_samples)[newly]
-        d = pairwise_distances(hyp.position[newly], lost['position'])
+        d = _distances_to_ways(hyp.position[newly], lost['position'],
+                               lost['velocity'] * (t - lost['stamp'])[:, None])
         d[person[:, None] != lost['person'][None, :]] = np.inf
         taken = np.zeros(len(lost), bool)
         done = np.zeros(len(newly), bool)
@@ -126,6 +129,15 @@ class Identity(Role):
             ids[newly[i]] = lost['track_id'][j]
             self.stats['resumed'] += 1
         self.lost = lost[~taken]
+
+
+def _distances_to_ways(xy: np.ndarray, start: np.ndarray, way: np.ndarray) -> np.ndarray:
+    """(n, k): from each of ``xy`` (n, 2) to the segment from each ``start`` (k, 2) along
+    ``way`` (k, 2)."""
+    rel = xy[:, None, :] - start[None, :, :]
+    length2 = (way ** 2).sum(axis=1)
+    f = np.clip((rel * way[None]).sum(axis=2) / np.maximum(length2, 1e-12)[None], 0.0, 1.0)
+    return np.hypot(*(rel - f[..., None] * way[None]).transpose(2, 0, 1))
 
 
 @jit.kernel
