@@ -181,11 +181,6 @@ class ClockOffset:
         self._odometry: deque[float] = deque(maxlen=window)
         self.offset = 0.0
 
-    def reset(self) -> None:
-        self._scans.clear()
-        self._odometry.clear()
-        self.offset = 0.0
-
     def add_scan(self, stamp: float, arrival: float) -> bool:
         """Note a scan; True when the offset changed."""
         self._scans.append(stamp - arrival)
