@@ -225,3 +225,46 @@ def test_transforms_are_kept_and_replay_takes_the_scanner_mount_from_them(tmp_pa
 def _import(src, dst):
     assert import_bag(src, dst)['/scan'] == 20
     return dst
+
+
+def test_a_ros1_recording_with_its_odometry_and_mount_only_on_tf_replays_with_both(tmp_path,
+                                                                                    capsys):
+    """A ROS 1 robot's recording as leg_tracker's benchmarks hold them: no Odometry topic,
+    the odometry and the mount as old-style tf/tfMessage transforms on /tf, frame names with
+    a leading slash, the scanner two transforms below the odometry's child."""
+    from laser_tracker.conversions import PlanarTransform, transforms_to_msg
+    from laser_tracker.tools.replay import replay_bag
+
+    ros1 = get_typestore(Stores.ROS1_NOETIC)
+    for name in ('tf/msg/tfMessage', 'tf2_msgs/msg/TFMessage'):
+        ros1.register(get_types_from_msg('geometry_msgs/TransformStamped[] transforms', name))
+    f = bag_factory(ros1)
+    path = tmp_path / 'robot.bag'
+    rng = np.random.default_rng(1)
+    with Ros1Writer(path) as w:
+        scan_c = w.add_connection('/scan', 'sensor_msgs/msg/LaserScan', typestore=ros1)
+        tf_c = w.add_connection('/tf', 'tf/msg/tfMessage', typestore=ros1)
+        t0 = 1_400_000_000.0
+        for k in range(30):
+            stamp = t0 + 0.2 * k
+            for j in range(4):
+                ts = stamp + 0.05 * j
+                tf = transforms_to_msg(f, [
+                    PlanarTransform(ts, '/odom', '/base_footprint', 0.1 * (k + j / 4), 0.0, 0.0),
+                    PlanarTransform(ts, '/base_footprint', '/base_link', 0.0, 0.0, 0.0),
+                    PlanarTransform(ts, '/base_link', '/laser', 0.2, 0.1, 0.3)])
+                msg = f.make('tf/msg/tfMessage', transforms=tf.transforms)
+                w.write(tf_c, int(round((ts + 0.005) * 1e9)),
+                        ros1.serialize_ros1(msg, msg.__msgtype__))
+            scan = Scan(stamp, rng.uniform(1.0, 6.0, 181).astype(np.float32), -math.pi / 2,
+                        math.pi / 180, 0.0, 8.0, 1e-5, 0.1, 'laser')
+            msg = scan_to_msg(f, scan)
+            w.write(scan_c, int(round((stamp + 0.02) * 1e9)),
+                    ros1.serialize_ros1(msg, msg.__msgtype__))
+    summary = replay_bag(path, progress=False)
+    assert summary['odom_tf'] == '/tf: odom -> base_footprint'
+    assert summary['odometry_messages'] == 120
+    mount = summary['scanner_mount']
+    assert mount['source'] == '/tf'
+    assert (mount['x'], mount['y'], mount['yaw']) == pytest.approx((0.2, 0.1, 0.3))
+    assert 'odometry from /tf (odom -> base_footprint)' in capsys.readouterr().err
