@@ -267,6 +267,34 @@ def test_perturbed_tracks_give_the_exact_counts(tmp_path):
     assert (mot['num_switches'], mot['num_misses'], mot['num_false_positives']) == (1, 3, 40)
 
 
+def test_a_sector_scores_only_the_annotations_and_tracks_within_its_bearings(tmp_path,
+                                                                             capsys):
+    """leg_tracker's benchmarks score their moving-robot recordings within -80 to 12 deg of
+    the scanner: a person annotated and tracked at 45 deg, and a track at -120 deg, are then
+    not scored; the followed person ahead is."""
+    def people(k):
+        return follower(k) + [(7, 2.0, 2.0)]                     # 45 deg to the left
+
+    def rows(stamps, poses):
+        far = [(stamps[k], 900, *to_frame(poses[[k]], np.array([-1.0]), np.array([-1.7])),
+                0.0, 0.0, 80.0, True) for k in range(40)]        # -120 deg, nobody there
+        return feed_back(stamps, poses, people, 40) + [
+            (s, i, float(x[0]), float(y[0]), vx, vy, w, c) for s, i, x, y, vx, vy, w, c in far]
+    whole = run_eval(tmp_path / 'whole', people, rows)
+    assert whole['clear_mot']['all']['num_objects'] == 80
+    assert whole['clear_mot']['all']['num_false_positives'] == 40
+    sector = run_eval(tmp_path / 'sector', people, rows, extra_args=('--sector', '-80', '12'))
+    mot = sector['clear_mot']['all']
+    assert (mot['num_objects'], mot['num_false_positives'], mot['num_misses']) == (40, 0, 0)
+    assert sector['annotations']['outside_sector'] == 40
+    assert sector['following_all_annotations']['objects'] == 40
+    assert sector['sector_deg'] == [-80.0, 12.0]
+    capsys.readouterr()
+    assert run_cli('evaluate', tmp_path / 'sector' / 'replay', tmp_path / 'sector' / 'bag',
+                   '--no-figures', '--sector', '12', '-80') == 2
+    assert '--sector 12 -80: the least and the largest bearing' in capsys.readouterr().err
+
+
 def test_scans_without_ego_pose_are_not_scored_but_counted(tmp_path, caplog):
     keep = np.ones(40, bool)
     keep[[5, 6]] = False                       # skipped by the replay: no row

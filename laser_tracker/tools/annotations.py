@@ -496,9 +496,15 @@ def _scan_frames(replay, scans: ScanTimes, tolerance: float, bag, folder, config
     return poses, segment, frame, foreign
 
 
+def _in_sector(x: np.ndarray, y: np.ndarray, sector) -> np.ndarray:
+    """Mask: points of the scan frame whose bearing lies in ``sector`` (degrees)."""
+    bearing = np.degrees(np.arctan2(y, x))
+    return (bearing >= sector[0]) & (bearing <= sector[1])
+
+
 def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                        scan_topic: str | None = None, persons=None,
-                       area=None) -> AnnotatedEvaluation:
+                       area=None, sector=None) -> AnnotatedEvaluation:
     """Score a replay (``evaluate.Replay``) against the annotations of ``bag``.
 
     ``config``: ``scoring.EvaluationConfig`` (threshold, confirmed_only, walking_speed,
@@ -506,11 +512,17 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
     ``area`` (xmin, xmax, ymin, ymax): the box of the scan frame where every person is
     annotated (a recording labelled only there): a track outside it is scored only where it
     lies within the threshold of an annotated person (who may step out of the box), else it
-    is ignored (someone walking elsewhere).
+    is ignored (someone walking elsewhere). ``sector`` (least, largest bearing, degrees, scan
+    frame): the annotated field of view; annotations and tracks outside it are not scored
+    (leg_tracker's benchmark evaluation, ``constrain_to_specific_angle``).
     """
     from laser_tracker.errors import LaserTrackerError
     from laser_tracker.tools.bag import read_scan_times
     from laser_tracker.tools.scoring import match_stamps, median_period
+
+    if sector is not None and not -180.0 <= sector[0] < sector[1] <= 180.0:
+        raise LaserTrackerError(f'--sector {sector[0]:g} {sector[1]:g}: the least and the '
+                                'largest bearing, degrees from -180 to 180')
 
     scans = (read_scan_times(bag, scan_topic) if scan_topic
              else choose_scan_topic(bag, replay.ego_stamps))
@@ -528,6 +540,11 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                                     f'{", ".join(map(str, unknown))} (ids: '
                                     f'{", ".join(map(str, ann.ids()))})')
         ann = ann.select(np.isin(ann.obj_id, list(persons)))
+    beside = 0
+    if sector is not None:
+        seen = _in_sector(ann.x, ann.y, sector)
+        beside = int((~seen).sum())
+        ann = ann.select(seen)
     tol = config.stamp_tolerance * median_period(scans.stamps)
     poses, segment, frame, foreign = _scan_frames(replay, scans, tol, bag, replay.folder,
                                                   config)
@@ -558,6 +575,9 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
         log.warning('%d track row(s) at stamps of no scored scan ignored', int((~usable).sum()))
     t, scan_of = t.select(usable), scan_of[usable]
     tx, ty = from_frame(poses[scan_of], t.x, t.y)
+    if sector is not None:
+        seen = _in_sector(tx, ty, sector)
+        t, scan_of, tx, ty = t.select(seen), scan_of[seen], tx[seen], ty[seen]
     outside = 0
     if area is not None:
         x0, x1, y0, y1 = area
@@ -586,11 +606,13 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
         'ego_motion_runs': int(np.unique(segment[segment >= 0]).size),
         'annotations': {**ann.counts, 'placed': placed, 'persons': ann.ids(),
                         'scored': int(scored.sum()), 'not_scored_no_pose': not_scored,
+                        'outside_sector': beside,
                         'walking': int((walking & ~unknown_speed).sum()),
                         'standing': int((~walking).sum()),
                         'speed_unknown': int(unknown_speed.sum())},
         'tracks_scored': int(np.unique(t.track_id).size),
         'area': None if area is None else [float(v) for v in area],
+        'sector_deg': None if sector is None else [float(v) for v in sector],
         'tracks_outside_area': outside,
         'following': fd,
         'following_all_annotations': comparable,

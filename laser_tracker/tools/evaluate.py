@@ -344,7 +344,8 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
                        config: EvaluationConfig = EvaluationConfig(), *,
                        static: str | None = None, scan_topic: str | None = None,
                        annotation_topic: str | None = None, persons=None,
-                       static_config=None, force: bool = False, area=None) -> Evaluation:
+                       static_config=None, force: bool = False, area=None,
+                       sector=None) -> Evaluation:
     """Score a replay folder against whatever ground truth ``bag`` carries.
 
     The replay must be of ``bag`` (:func:`check_replayed`) unless ``force``.
@@ -354,7 +355,8 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
     structure (``static_map.evaluate_static``). ``static`` (``reference`` or ``ego``) adds the
     static-structure count to any of them, or asks for it on an unlabelled recording.
     ``area``: hand annotations only, the box of the scan frame they cover (tracks outside it
-    are not scored).
+    are not scored); ``sector``: hand annotations only, the bearings (degrees, scan frame)
+    scored (annotations and tracks outside them are not).
     """
     from laser_tracker.tools.annotations import ANNOTATION_TOPIC, evaluate_annotated
     from laser_tracker.tools.bag import resolve_bag, scan_topic_of
@@ -374,7 +376,7 @@ def evaluate_recording(folder: str | Path, bag: str | Path,
         ev = evaluate_replay(folder, bag, config, replay)
     elif kind == 'annotated':
         ann = evaluate_annotated(replay, bag, config, annotation_topic, scan_topic, persons,
-                                 area)
+                                 area, sector)
         ev = Evaluation(ann.result, None, replay, annotated=ann)
     elif static is not None:
         result = {'mode': 'static', 'replay': str(folder), 'bag': str(bag)}
@@ -789,6 +791,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='annotated recordings: only this box of the scan frame is '
                              'annotated; tracks outside it are scored only on an annotated '
                              'person')
+    parser.add_argument('--sector', nargs=2, type=float, metavar=('MIN_DEG', 'MAX_DEG'),
+                        help='annotated recordings: score only the annotations and tracks '
+                             'whose bearing in the scan frame lies between these angles '
+                             '(degrees), as leg_tracker\'s benchmarks score their recordings '
+                             'of a moving robot (-80 12)')
     static = parser.add_mutually_exclusive_group()
     static.add_argument('--static-map', choices=('reference', 'ego'),
                         help='also count false confirmed tracks on static structure, mapped '
@@ -834,7 +841,7 @@ def run(args: argparse.Namespace) -> int:
                                 scan_topic=args.scan_topic,
                                 annotation_topic=args.annotation_topic, persons=args.person,
                                 static_config=static_config_from_args(args),
-                                force=args.force, area=args.area)
+                                force=args.force, area=args.area, sector=args.sector)
     result = ev.result
     figures = [] if args.no_figures else write_figures(ev, folder)
     result['figures'] = [str(p) for p in figures]
