@@ -171,13 +171,19 @@ def _recordings(work: Path) -> dict:
         found['leg_demo'] = (demo, '/scan', 'unlabelled')
     negative = real_recording('leg_tracker/training/negative_2.bag')
     if negative.exists():
-        inf = work / 'negative_2_inf'
-        if not inf.exists():
-            rewrite_scans(negative, inf, NEGATIVE_TOPICS)
+        inf = _negative_inf(work, negative)
         for s, topic in zip(NEGATIVE_SCANNERS, NEGATIVE_TOPICS):
             found[f'negative_2_{s}'] = (negative, topic, 'negative')
             found[f'negative_2_{s}_inf'] = (inf, topic, 'negative')
     return found
+
+
+def _negative_inf(work: Path, negative: Path) -> Path:
+    """``negative_2``'s three scanners with their no-return readings as +inf (written once)."""
+    inf = work / 'negative_2_inf'
+    if not inf.exists():
+        rewrite_scans(negative, inf, NEGATIVE_TOPICS)
+    return inf
 
 
 def _freiburg(work: Path, log: Path, noise: str, seed: int) -> Path:
@@ -322,9 +328,7 @@ def _with_odometry(work: Path, names) -> dict:
     negative = real_recording('leg_tracker/training/negative_2.bag')
     if name not in names or not negative.exists():
         return {}
-    inf = work / 'negative_2_inf'
-    if not inf.exists():
-        rewrite_scans(negative, inf, NEGATIVE_TOPICS)
+    inf = _negative_inf(work, negative)
     parts = []
     for s, topic in zip(NEGATIVE_SCANNERS, NEGATIVE_TOPICS):
         for seed in ODOMETRY_SEEDS:
