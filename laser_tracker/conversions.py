@@ -746,9 +746,12 @@ def detections_to_marker_array(factory: MessageFactory, detections):
     the legs stand was seen free before, static = the legs stand on static background,
     spread = the distance between its two legs),
     one POINTS marker (ns ``segments``, id 0) whose points are the scan's compact segments
-    (text = JSON ``{"leg": [leg probability of each]}``), and one ARROW (ns ``scanner``,
-    id 0) whose pose is the scanner pose and whose text is JSON ``{"restarted": bool}`` (the
-    ego-motion restarted its pose chain: tracks are void).
+    (text = JSON ``{"leg": [leg probability of each]}``), one POINTS marker (ns ``view``,
+    id 0) whose pose is the scanner pose and whose points, one per beam in the scanner's
+    frame, are what each beam saw (a return at its end point, z = 0; no return: the point 1 m
+    along the beam, z = 1; too close to measure: the same, z = -1), and one ARROW (ns
+    ``scanner``, id 0) whose pose is the scanner pose and whose text is JSON
+    ``{"restarted": bool}`` (the ego-motion restarted its pose chain: tracks are void).
     """
     f = factory
     stamp, frame_id = float(detections.stamp), detections.frame_id
@@ -803,6 +806,15 @@ def detections_to_marker_array(factory: MessageFactory, detections):
             points=[f.make('geometry_msgs/msg/Point', x=float(a), y=float(b), z=0.0)
                     for a, b in segments]))
     x, y, theta = (float(v) for v in detections.origin)
+    view = detections.view
+    if len(view):
+        markers.append(f.make(
+            'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='view',
+            id=0, type=MARKER_POINTS, action=MARKER_ADD, pose=pose(x, y, theta),
+            scale=f.make('geometry_msgs/msg/Vector3', x=0.03, y=0.03, z=0.03),
+            color=color(0.3, 0.6, 1.0, 0.5),
+            points=[f.make('geometry_msgs/msg/Point', x=a, y=b, z=c)
+                    for a, b, c in _view_points(view)]))
     markers.append(f.make(
         'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id), ns='scanner',
         id=0, type=MARKER_ARROW, action=MARKER_ADD, pose=pose(x, y, theta),
@@ -812,17 +824,37 @@ def detections_to_marker_array(factory: MessageFactory, detections):
     return f.make('visualization_msgs/msg/MarkerArray', markers=markers)
 
 
+def _view_points(view) -> list[tuple[float, float, float]]:
+    """The ``view`` marker's points of a ``core.detections.View`` (see
+    :func:`detections_to_marker_array`)."""
+    bearing = np.asarray(view.bearing, dtype=float).reshape(-1)
+    reach = np.asarray(view.reach, dtype=float).reshape(-1)
+    seen = np.isfinite(reach)
+    r = np.where(seen, reach, 1.0)
+    code = np.where(seen, 0.0, np.where(reach > 0, 1.0, -1.0))
+    return np.column_stack((r * np.cos(bearing), r * np.sin(bearing), code)).tolist()
+
+
+def _view_of_points(points: np.ndarray):
+    """The ``core.detections.View`` of the ``view`` marker's points (k, 3)."""
+    from laser_tracker.core.detections import View
+
+    x, y, z = points.T
+    reach = np.where(z > 0.5, np.inf, np.where(z < -0.5, -np.inf, np.hypot(x, y)))
+    return View(bearing=np.arctan2(y, x), reach=reach)
+
+
 def detections_from_marker_array(msg):
     """The ``blobs`` topic MarkerArray -> ``core.detections.Detections``.
 
     Raises ValueError if the array has no ``scanner`` marker (not a message of the
     ``blobs`` topic).
     """
-    from laser_tracker.core.detections import Blobs, Detections, People, Segments
+    from laser_tracker.core.detections import Blobs, Detections, People, Segments, View
 
     rows, origin, stamp, frame_id, restarted = [], None, math.nan, 'odom', False
     stamp_ns = None
-    persons, segments = [], []
+    persons, segments, view = [], [], None
     for m in msg.markers:
         if m.action != MARKER_ADD:
             continue
@@ -865,6 +897,9 @@ def detections_from_marker_array(msg):
                 leg = [0.0] * len(points)
             segments.extend((x, y, float(v) if isinstance(v, (int, float)) else 0.0)
                             for (x, y), v in zip(points, leg))
+        elif m.ns == 'view' and m.type == MARKER_POINTS:
+            view = _view_of_points(np.array([(p.x, p.y, p.z) for p in m.points],
+                                            dtype=float).reshape(-1, 3))
     if origin is None:
         raise ValueError('MarkerArray has no scanner marker: not a blobs message')
     arr = np.array(rows, dtype=float).reshape(-1, 5)
@@ -878,6 +913,7 @@ def detections_from_marker_array(msg):
                       free=people[:, 3] > 0.5, spread=people[:, 4].copy(),
                       static=people[:, 5] > 0.5),
         segments=Segments(xy=seg[:, :2].copy(), leg=seg[:, 2].copy()),
+        view=view if view is not None else View(),
         frame_id=frame_id, restarted=restarted, stamp_ns=stamp_ns)
 
 

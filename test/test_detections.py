@@ -1,5 +1,5 @@
 """The detection message (``core.detections.Detections``) across the ``blobs`` topic: every
-field of motion blobs, people and segments comes back as it went, for rclpy and rosbags
+field of motion blobs, people, segments and the view comes back as it went, for rclpy and rosbags
 messages alike; a MarkerArray that is not a blobs message is refused."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from laser_tracker.conversions import (bag_factory, detections_from_marker_array,
                                        detections_to_marker_array, ros_factory)
-from laser_tracker.core.detections import Blobs, Detections, People, Segments
+from laser_tracker.core.detections import Blobs, Detections, People, Segments, View
 from laser_tracker.tools.bag import TYPESTORE
 
 
@@ -24,7 +24,9 @@ def message() -> Detections:
                       free=np.array([True, False]), spread=np.array([0.3, np.nan]),
                       static=np.array([False, True])),
         segments=Segments(xy=np.array([[1.0, 1.0], [2.0, 3.0], [4.0, 0.0]]),
-                          leg=np.array([0.8, 0.01, 0.0])))
+                          leg=np.array([0.8, 0.01, 0.0])),
+        view=View(bearing=np.array([-2.0, -0.5, 0.0, 1.0, 2.5]),
+                  reach=np.array([0.3, np.inf, 4.25, -np.inf, 11.0])))
 
 
 @pytest.mark.parametrize('factory', [ros_factory(), bag_factory(TYPESTORE)],
@@ -47,12 +49,15 @@ def test_every_field_crosses_the_blobs_topic(factory):
     assert p.spread[0] == pytest.approx(0.3) and math.isnan(p.spread[1])
     np.testing.assert_array_equal(got.segments.xy, sent.segments.xy)
     np.testing.assert_allclose(got.segments.leg, sent.segments.leg)
+    np.testing.assert_allclose(got.view.bearing, sent.view.bearing, atol=1e-9)
+    np.testing.assert_allclose(got.view.reach, sent.view.reach, atol=1e-9)
 
 
 def test_an_empty_scan_is_an_empty_message():
     got = detections_from_marker_array(detections_to_marker_array(
         ros_factory(), Detections(stamp=3.0, origin=np.zeros(3))))
     assert got.blobs.count == 0 and len(got.people) == 0 and len(got.segments) == 0
+    assert len(got.view) == 0
     assert got.stamp == 3.0 and not got.restarted
 
 
@@ -61,3 +66,14 @@ def test_a_marker_array_without_the_scanner_is_not_a_blobs_message():
     msg.markers = [m for m in msg.markers if m.ns != 'scanner']
     with pytest.raises(ValueError, match='not a blobs message'):
         detections_from_marker_array(msg)
+
+
+def test_the_view_of_a_scan_tells_returns_silence_and_too_close_apart():
+    """REP 117: a return within range is its range; +inf, NaN, a code below range_min and a
+    reading at range_max returned nothing (+inf); -inf was too close to measure."""
+    from laser_tracker.core.scan import Scan
+    scan = Scan(stamp=1.0, ranges=np.array([2.5, np.inf, np.nan, 0.01, 30.0, -np.inf]),
+                angle_min=-0.5, angle_increment=0.2, range_min=0.05, range_max=30.0)
+    view = View.of_scan(scan)
+    assert view.reach.tolist() == [2.5, np.inf, np.inf, np.inf, np.inf, -np.inf]
+    np.testing.assert_allclose(view.bearing, -0.5 + 0.2 * np.arange(6))

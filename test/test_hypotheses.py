@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from laser_tracker.core.detections import Blobs, Detections, People, Segments
+from laser_tracker.core.detections import Blobs, Detections, People, Segments, View
 from laser_tracker.core.hypotheses import HypothesisConfig, HypothesisTracker
 from laser_tracker.core.kalman import KalmanConfig
 
@@ -481,6 +481,58 @@ def test_an_unseen_track_is_reported_only_with_report_unseen():
     assert hidden[5] == [1] and hidden[6] == [] and hidden[7] == hidden[8] == [1]
 
 
+def test_a_coasting_track_is_not_reported_where_the_scan_sees_its_place_empty():
+    """A walker confirmed, then missed for one scan (it coasts to about 2.2 m ahead of the
+    scanner): left out of the report while every beam through the disc around it passes
+    beyond, with a few silent beams among them; reported while something nearer hides it,
+    something stands inside the disc, every beam is silent or one is too close to measure,
+    without a view, and with seen_empty_radius 0; always alive, with its id."""
+    bearing = np.radians(np.arange(-90.0, 90.25, 0.25))
+
+    def reported(reach, radius=0.5, view=True):
+        tr = HypothesisTracker(HypothesisConfig(seen_empty_radius=radius), KalmanConfig())
+        out = []
+        for k in range(9):
+            t = k * DT
+            d = frame(t, *(() if k == 6 else ((1.0 + t, 0.0),)))
+            if view:
+                d.view = View(bearing, reach if k == 6 else np.full(bearing.size, 8.0))
+            tr.update(d)
+            tracks = tr.report(t)
+            out.append(tracks.track_id[tracks.confirmed].tolist())
+            assert tr.hyp.track_id.tolist() == [1] or k < 2
+        return out
+    beyond = np.full(bearing.size, 8.0)
+    beyond[::3] = np.inf
+    hidden = reported(beyond)
+    assert hidden[5] == [1] and hidden[6] == [] and hidden[7] == hidden[8] == [1]
+    for reach in (np.full(bearing.size, 1.0),             # something nearer hides it
+                  np.where(np.abs(bearing) < 0.01, 2.2, 8.0),   # a leg within the disc
+                  np.where(np.abs(bearing) < 0.01, 2.65, 8.0),  # ... at its far side
+                  np.full(bearing.size, np.inf),          # no return at all: no evidence
+                  np.where(np.abs(bearing) < 0.01, -np.inf, 8.0)):  # too close to measure
+        shown = reported(reach)
+        assert shown[5] == shown[6] == shown[7] == [1]
+    assert reported(beyond, radius=0.0)[6] == [1]
+    assert reported(beyond, view=False)[6] == [1]
+
+
+def test_a_view_of_mismatched_lengths_is_no_view():
+    """A malformed view (bearings and reaches of different lengths) is taken as none, NaN
+    beams are dropped: a coasting track stays reported, nothing raises."""
+    from laser_tracker.core.tracking.frame import _view
+    assert len(_view(View(np.zeros(5), np.zeros(4)))) == 0
+    v = _view(View(np.array([0.0, np.nan, 0.1]), np.array([1.0, 2.0, np.nan])))
+    assert v.bearing.tolist() == [0.0] and v.reach.tolist() == [1.0]
+    for n in (3, 4):                  # 3 and 4 beams: one reach for each, or one too few
+        tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
+        for k in range(7):
+            d = frame(k * DT, *(() if k == 6 else ((1.0 + k * DT, 0.0),)))
+            d.view = View(np.array([-0.01, 0.0, 0.01, 0.02]), np.full(n, 8.0))
+            tr.update(d)
+        assert tr.report(6 * DT).confirmed.tolist() == [n == 3]
+
+
 def test_the_state_is_one_aligned_record_per_hypothesis_moved_whole():
     """take and concat move every field of a row unchanged; every number is aligned."""
     from laser_tracker.core.tracking.state import Hypotheses, hypothesis_dtype
@@ -562,15 +614,18 @@ def test_a_person_detection_starts_a_hypothesis_that_outlives_one_missed_scan(we
     assert len(tr.hyp) == 0
 
 
-@pytest.mark.parametrize('pairs, spread, static, confirmed_at', [
-    (8, 0.25, False, 8), (0, 0.25, False, 30), (8, np.nan, False, 30), (8, 0.25, True, 30)])
-def test_a_person_in_view_is_confirmed_by_both_legs_seen(pairs, spread, static,
+@pytest.mark.parametrize('pairs, samples, spread, static, confirmed_at', [
+    (8, 0, 0.25, False, 8), (0, 0, 0.25, False, None), (8, 0, np.nan, False, None),
+    (8, 0, 0.25, True, None), (0, 30, 0.25, False, 30), (8, 30, np.nan, False, 30),
+    (8, 30, 0.25, True, 30)])
+def test_a_person_in_view_is_confirmed_by_both_legs_seen(pairs, samples, spread, static,
                                                          confirmed_at):
     """Someone in view where the scans always saw something (not walked in) is confirmed
-    after ``person_confirm_pairs`` detections of two legs off static background, or else
-    ``person_confirm_samples`` detections (a lone post shows one leg; a chair's legs have
-    long stood where they stand)."""
-    tr = HypothesisTracker(HypothesisConfig(person_confirm_pairs=pairs), KalmanConfig())
+    after ``person_confirm_pairs`` detections of two legs off static background; a lone
+    leg (a post) or legs on static background (a chair's legs have long stood where they
+    stand) never by default, after ``person_confirm_samples`` detections where it is set."""
+    tr = HypothesisTracker(HypothesisConfig(person_confirm_pairs=pairs,
+                                            person_confirm_samples=samples), KalmanConfig())
     first = None
     for k in range(35):
         d = people(k * DT, (2.0, 1.0), free=False)

@@ -170,6 +170,21 @@ def test_detection_and_tracking_separately_equal_the_pipeline():
         assert np.allclose(frame.hypotheses.position, r.hypotheses.position)
 
 
+def test_the_view_keeps_the_returns_of_the_robots_body():
+    """The view that goes to tracking is the scan as measured: the beams the self-mask takes
+    as the robot's body keep their returns (the body hides what lies behind it), while
+    detection does not see them."""
+    world = room()
+    detector = Detector()
+    scan = make_scan(world, still(0), 1.0)
+    body = np.full(scan.n_beams, np.nan)
+    body[170:190] = scan.ranges[170:190] + 0.01
+    det = detector.update(scan, stamped(1.0, still(0), body=body))
+    assert len(det.detections.view) == scan.n_beams
+    np.testing.assert_array_equal(det.detections.view.reach[170:190], scan.ranges[170:190])
+    np.testing.assert_allclose(det.detections.view.bearing, scan.angles)
+
+
 def test_grids_on_request():
     world = room()
     pipeline = Pipeline()

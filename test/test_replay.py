@@ -316,3 +316,18 @@ def test_odometry_stamped_by_another_clock_is_read_on_the_scans_clock(tmp_path, 
     assert len(said) == 1 and f"stamps are {'+' if offset > 0 else '-'}1" in said[0]
     assert events.get('note: no odometry', 0) <= 6                 # the first scans only
     assert shifted['confirmed_tracks'] <= as_recorded['confirmed_tracks'] + 1
+
+
+def test_a_benchmark_parameter_file_is_the_custom_mode_alone(tmp_path):
+    """``bench real`` / ``bench sims --config FILE``: the file makes the ``custom`` column;
+    ``paper``, ``motion`` and ``defaults`` stay what they are (motion: the defaults without
+    the person detector)."""
+    from laser_tracker.tools.bench_real import mode_parameters
+    config = tmp_path / 'x.yaml'
+    config.write_text('/**:\n  ros__parameters:\n    hypotheses:\n      gate: 0.3\n'
+                      '    person_detector:\n      enabled: true\n')
+    gate = {mode: mode_parameters(mode, [config])['tracking'].sections['hypotheses'].gate
+            for mode in ('paper', 'motion', 'defaults', 'custom')}
+    assert gate == {'paper': 0.7, 'motion': 0.7, 'defaults': 0.7, 'custom': 0.3}
+    detector = mode_parameters('motion', [config])['detection'].sections['person_detector']
+    assert detector.enabled is False

@@ -7,7 +7,9 @@ Three kinds of measurement, each its own plain-array structure in the odometry f
 * :class:`People`: people found by the shape of their legs (``core.person_detector``), when
   the person detector runs;
 * :class:`Segments`: the scan's compact segments (jump-distance clusters at most a metre
-  wide), occupied space that keeps a stopped object's track alive.
+  wide), occupied space that keeps a stopped object's track alive;
+* :class:`View`: what each beam of the scan saw, so the tracker can tell a place the scan
+  sees empty from one it cannot see.
 
 ``conversions.detections_to_marker_array`` / ``detections_from_marker_array`` carry it as a
 MarkerArray (schema in README.md, "Topics and schemas").
@@ -73,17 +75,42 @@ class Segments:
 
 
 @dataclass
+class View:
+    """What each beam of the scan saw, in the scanner's frame (the pose ``origin`` of the
+    :class:`Detections`): its ``bearing`` (radians) and ``reach``: the range of its return,
+    +inf where it returned nothing (REP 117: +inf, NaN, a no-return code below
+    ``range_min``, a reading at ``range_max``; a dark or grazed surface may lie anywhere
+    along it), -inf where something was too close to measure. Empty: not known (an older
+    message)."""
+
+    bearing: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    reach: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __len__(self) -> int:
+        return int(np.shape(self.bearing)[0])
+
+    @classmethod
+    def of_scan(cls, scan) -> View:
+        """The view of a ``core.scan.Scan`` (its returns, silent and too-close beams)."""
+        reach = np.where(scan.valid(), scan.ranges, np.inf)
+        reach[scan.ranges == -np.inf] = -np.inf
+        return cls(bearing=np.array(scan.angles, dtype=float), reach=reach)
+
+
+@dataclass
 class Detections:
     """Everything detection found in one scan, in the odometry frame of ``origin`` (the
-    scanner pose x, y, theta). ``restarted``: the ego-motion pose chain restarted at this
-    scan (positions before it are unrelated: tracks are void); ``stamp_ns``: the scan's
-    exact stamp (integer ns), when known."""
+    scanner pose x, y, theta; ``view``: what the scan's beams saw, in its frame).
+    ``restarted``: the ego-motion pose chain restarted at this scan (positions before it
+    are unrelated: tracks are void); ``stamp_ns``: the scan's exact stamp (integer ns),
+    when known."""
 
     stamp: float
     origin: np.ndarray
     blobs: Blobs = field(default_factory=Blobs.empty)
     people: People = field(default_factory=People)
     segments: Segments = field(default_factory=Segments)
+    view: View = field(default_factory=View)
     frame_id: str = 'odom'
     restarted: bool = False
     stamp_ns: int | None = None

@@ -42,9 +42,10 @@ deletion, confirmation):
     ``view_travel_ratio``, ``ride_along_speed``, ``confirm_time``, ``confirm_min_speed``,
     ``confirm_min_travel``, ``duplicate_radius``, ``confirm_when_measured``.
 
-Beyond the paper, person detections are measurements of their own kind (``person_*``), and
-a confirmed track without support is held on a scan segment (``segment_gate``,
-``stop_radius``) instead of coasting.
+Beyond the paper, person detections are measurements of their own kind (``person_*``), a
+confirmed track without support is held on a scan segment (``segment_gate``,
+``stop_radius``) instead of coasting, and a coasting track whose place the scan sees empty
+is not reported (``seen_empty_radius``, ``core.tracking.visibility``).
 
 Identity. Each hypothesis has a ``track_id`` that is unique among the live hypotheses. On a
 split, the copy supported by the blob nearest the prediction keeps the parent's id, samples
@@ -56,6 +57,7 @@ so a person whose leg hypotheses split and merge again keeps one id.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +67,7 @@ from laser_tracker.core import jit, kalman as kalman_kernels
 from laser_tracker.core.detections import Detections
 from laser_tracker.core.kalman import KalmanConfig, TrackFilter
 from laser_tracker.core.tracking import association, frame as frame_kernels, identity, \
-    initiation, sustaining
+    initiation, sustaining, visibility
 from laser_tracker.core.tracking.association import BlobAssociation, PersonAssociation
 from laser_tracker.core.tracking.confirmation import Confirmation
 from laser_tracker.core.tracking.deletion import Deletion
@@ -74,6 +76,7 @@ from laser_tracker.core.tracking.identity import Identity
 from laser_tracker.core.tracking.initiation import Initiation
 from laser_tracker.core.tracking.state import Hypotheses, Tracks
 from laser_tracker.core.tracking.sustaining import Sustaining
+from laser_tracker.core.tracking.visibility import Visibility
 
 log = logging.getLogger(__name__)
 
@@ -215,10 +218,12 @@ class HypothesisConfig:
         'goes on moving. The same fraction as difference.motion_depth. A stationary scanner '
         'is not affected. 0 = off (paper).', min=0.0, max=10.0)
     person_confirm_samples: int = param(
-        30, 'A hypothesis started by a person detection is also confirmed once this many '
-        'person detections have supported it, though it was never seen walking: a person '
-        'who stands in view from the start (in front of a robot that follows them). Chair '
-        'and table legs rarely stay detected that long from a moving robot. 0 = off.',
+        0, 'A hypothesis started by a person detection is also confirmed once this many '
+        'person detections of any kind (one leg or two) have supported it, though it was '
+        'never seen walking. 0 = off: a person who stands in view from the start is '
+        'confirmed by person_confirm_pairs (both legs seen), since a chair that a robot '
+        'drives around stays detected as long as a standing person (30: such a person seen '
+        'as one leg is confirmed after 4 s at 7.5 Hz, and so is the chair).',
         min=0, max=100000)
     person_confirm_time: float = param(
         0.3, 'A hypothesis a person detection started is confirmed once it has lived this '
@@ -250,6 +255,15 @@ class HypothesisConfig:
         'reported as not confirmed until it is measured again (it lives on with its id): '
         'fewer false positives against annotations of the people in view, but a person '
         'hidden for a moment leaves tracks and the head.')
+    seen_empty_radius: float = param(
+        0.5, 'A confirmed track that nothing measured in this scan is left out of tracks '
+        '(reported as not confirmed; it lives on with its id) while every beam through the '
+        'disc of this radius (m) around it passes beyond the disc or returns nothing, and '
+        'one at least passes beyond: the scan sees that place empty, so the object is not '
+        'there (it turned, or the track followed something that never was). A track hidden '
+        'behind something nearer stays reported. Where a person may stand off a coasting '
+        'prediction: the person_gate and segment_gate that would take them back. 0 = off '
+        '(paper).', min=0.0, max=5.0)
     segment_gate: float = param(
         0.5, 'A confirmed person\'s hypothesis with no supporting blob or person detection '
         'is supported by the nearest compact scan segment with a leg probability of at '
@@ -317,8 +331,10 @@ class HypothesisTracker:
         self.initiation = Initiation(*role, self.identity)
         self.deletion = Deletion(*role)
         self.confirmation = Confirmation(*role)
+        self.visibility = Visibility(*role)
         self.roles = (self.measurements, self.identity, self.people, self.blobs,
-                      self.sustaining, self.initiation, self.deletion, self.confirmation)
+                      self.sustaining, self.initiation, self.deletion, self.confirmation,
+                      self.visibility)
         self.reset()
         jit.compiled('tracking kernels', _exercise_kernels)
 
@@ -328,6 +344,7 @@ class HypothesisTracker:
             log.warning('tracker reset: %s', reason)
             self.stats['resets'] += 1
         self.hyp = Hypotheses.empty(self.filter.dim)
+        self.seen_empty = (math.nan, np.zeros(0, bool))   # (stamp, mask over hyp)
         self.measurements.reset()
         self.initiation.reset()
         self.identity.reset()
@@ -364,23 +381,33 @@ class HypothesisTracker:
                 self.identity.remember_lost(removed, t)
             newly = self.confirmation.confirm(hyp, frame)
             self.identity.resume(hyp, newly, t)
+            self.seen_empty = (t, self.visibility.seen_empty(hyp, frame))
         self.hyp = hyp
         self.initiation.remember(frame)
         self.measurements.remember(frame)
         return FrameResult(stamp=t, hypotheses=hyp, newly_confirmed=newly,
                            created=sum(map(len, born)), bounded=bounded)
 
+    def _seen_empty(self, stamp: float) -> np.ndarray:
+        """The last frame's seen-empty mask when ``stamp`` is that frame's, else none."""
+        stamp_then, mask = self.seen_empty
+        if stamp == stamp_then and mask.shape[0] == len(self.hyp):
+            return mask
+        return np.zeros(len(self.hyp), bool)
+
     def report(self, stamp: float) -> Tracks:
         """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated); with
         ``report_unseen`` false a confirmed track that nothing measured at ``stamp`` (its
-        filter's ``t_state`` is older) is reported as not confirmed."""
+        filter's ``t_state`` is older) is reported as not confirmed, and so is one whose
+        place the scan sees empty (``seen_empty_radius``, ``tracking.visibility``)."""
         h, c = self.hyp, self.config
         speed2 = (h.velocity ** 2).sum(axis=1)
         return Tracks(stamp=float(stamp), track_id=h.track_id.copy(),
                       position=h.position.copy(), velocity=h.velocity.copy(),
                       covariance=self.filter.position_covariance(h.P, h.t_state, stamp),
                       weight=h.weight.copy(), samples=h.samples.copy(),
-                      confirmed=h.confirmed & (c.report_unseen | (h.t_state >= stamp)),
+                      confirmed=h.confirmed & (c.report_unseen | (h.t_state >= stamp))
+                      & ~self._seen_empty(stamp),
                       moving=(speed2 >= c.moving_speed ** 2) & ~h.stopped,
                       kind=np.where(h.is_person(c.person_kind_samples),
                                     'person', 'object').astype(object))
@@ -416,6 +443,7 @@ def _exercise_kernels() -> None:
         sustaining._holding_segments(np.arange(n), xy, r['position'], r['person_samples'],
                                      r['confirmed'], xy, np.ones(n), 2, 0.02, 0.5, 0.15)
         initiation._pairs(xy, np.ones(n, bool), xy, 0.6, 0.1)
+        visibility._seen_empty(xy, np.linspace(-1.0, 1.0, 5), np.full(5, 3.0), 0.5)
     filter = TrackFilter(KalmanConfig())
     state, P = filter.initial(np.ones((1, 2)), np.zeros((1, 2)), np.ones(1))
     filter.correct(state, P, np.zeros(1), np.ones((1, 2)), 1.0)

@@ -38,7 +38,7 @@ import numpy as np
 
 from laser_tracker.core import jit
 from laser_tracker.core.blobs import BlobConfig, segment
-from laser_tracker.core.detections import Blobs, Detections, People, Segments
+from laser_tracker.core.detections import Blobs, Detections, People, Segments, View
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map,
                                            people_in_odometry, pose_quality, pose_trusted)
@@ -378,10 +378,12 @@ class Detector:
             self.events.note('history dropped', 'the ego-motion pose chain restarted')
             self.reset()
         self.rules.accept(scan.stamp)
+        view = View.of_scan(scan)           # the robot's body hides what lies behind it
         scan = _without_body(scan, pose.body)
         at = np.asarray(pose.pose, dtype=float)
         det = self._detect(scan, at, want_grids, pose.quality)
         self._people_and_segments(scan, at, det)
+        det.detections.view = view
         self._add_to_background(at, float(scan.stamp), det)
         det.detections.frame_id = pose.frame_id or self.frame_id
         det.detections.stamp_ns = scan.stamp_ns

@@ -115,14 +115,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def mode_parameters(mode: str, files=(), overrides=None):
-    """Loaded node parameters of a mode (``custom``: the given files), with ``overrides``."""
+    """Loaded node parameters of a mode, with ``overrides``: ``paper`` the paper's file,
+    ``motion`` the defaults without the person detector, ``defaults``, ``custom`` the given
+    files (only ``custom`` reads them)."""
     overrides = dict(overrides or {})
     if mode == 'paper':
         files = [REPO / 'config' / 'paper_reference.yaml']
-    elif mode == 'motion':
-        overrides['person_detector.enabled'] = False
     elif mode != 'custom':
         files = []
+    if mode == 'motion':
+        overrides['person_detector.enabled'] = False
     return parameters.load(parameters.read_files(files), overrides=overrides)
 
 

@@ -20,7 +20,8 @@ topic                       type                                   content
 ``/grid``,                  nav_msgs/OccupancyGrid                 the occupancy grid and the
 ``/grid/difference``                                               difference map, scanner frame
                                                                    (every ``grids``-th scan)
-``/blobs``                  visualization_msgs/MarkerArray         as the ``detection`` node
+``/blobs``                  visualization_msgs/MarkerArray         as the ``detection`` node,
+                                                                   without its ``view``
 ``/hypotheses``,            visualization_msgs/MarkerArray         as the ``tracking`` node
 ``/tracks``,
 ``/tracks/markers``
@@ -63,6 +64,7 @@ from laser_tracker.conversions import (OCCUPANCY_OF_CELL, MovingObject, PlanarTr
                                        evaluation_markers, objects_to_marker_array,
                                        occupancy_grid_msg, recording_factory, restamp_ns,
                                        scan_to_msg, time_msg, tracker_msgs, transforms_to_msg)
+from laser_tracker.core.detections import View
 from laser_tracker.core.geometry import compose, interpolate_poses, inverse
 from laser_tracker.errors import LaserTrackerError
 from laser_tracker.tools.bag import (FACTORY as BAG_FACTORY, GROUND_TRUTH_TOPIC, LATCHED_QOS,
@@ -277,7 +279,9 @@ class RunRecorder:
             self._write(DIFFERENCE_TOPIC, restamp_ns(f, occupancy_grid_msg(
                 f, difference_occupancy(det), self.resolution, stamp, scan.frame_id), ns), ns)
         found = det.detections
-        self._write(BLOBS_TOPIC, restamp_ns(f, detections_to_marker_array(f, found), ns), ns)
+        # without the view: it repeats the recorded scan, and would double the recording
+        self._write(BLOBS_TOPIC, restamp_ns(f, detections_to_marker_array(
+            f, dataclasses.replace(found, view=View())), ns), ns)
         confirmed, hypotheses, markers = tracker_msgs(f, tracks, found.stamp, found.frame_id,
                                                       ns)
         self._write(HYPOTHESES_TOPIC, hypotheses, ns)

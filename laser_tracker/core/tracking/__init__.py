@@ -18,6 +18,8 @@ module              role                                              paper
 ``deletion``        removal below ``remove_below``; the bound         Sec. 8
 ``confirmation``    the paper's m samples and the further rules,      Sec. 8
                     each a small function
+``visibility``      coasting tracks whose place the scan sees empty   (beyond the paper)
+                    are not reported
 ==================  ================================================  =====================
 
 The state of all hypotheses is one numpy structured array (``state.Hypotheses``); the

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_tracker.core import jit
-from laser_tracker.core.detections import Detections, People, Segments
+from laser_tracker.core.detections import Detections, People, Segments, View
 from laser_tracker.core.tracking.role import Role
 
 log = logging.getLogger('laser_tracker.core.hypotheses')   # the tracker's one log, all roles
@@ -66,8 +66,8 @@ class Scanner:
 class Frame:
     """The measurements of one frame, odometry frame: motion blobs (``xy``, ``structure``),
     person detections (``persons``, ``confidence``, ``free``, ``spread``: NaN where the legs
-    stand on static background, whose "legs" do not swing) and compact segments
-    (``segments``, ``leg``)."""
+    stand on static background, whose "legs" do not swing), compact segments
+    (``segments``, ``leg``) and what the scan's beams saw (``view``, scanner frame)."""
 
     stamp: float
     scanner: Scanner
@@ -79,6 +79,7 @@ class Frame:
     spread: np.ndarray
     segments: np.ndarray
     leg: np.ndarray
+    view: View
 
     @property
     def dt(self) -> float:
@@ -109,7 +110,8 @@ class Measurements(Role):
         scanner = Scanner(np.asarray(detections.origin, dtype=float).reshape(-1)[:3],
                           self.previous_pose, self.previous_stamp)
         frame = Frame(float(detections.stamp), scanner, *self._usable_blobs(detections),
-                      *_people(detections.people), *_segments(detections.segments))
+                      *_people(detections.people), *_segments(detections.segments),
+                      _view(detections.view))
         if self.config.ride_along_reach > 0:
             riding = self._riding_with_scanner(frame)
             if riding is not None:
@@ -152,9 +154,9 @@ class Measurements(Role):
         return xy[ok], _aligned(blobs.structure, ok, n, np.nan)
 
     def _riding_with_scanner(self, frame: Frame) -> np.ndarray | None:
-        """Mask (None: none): motion blobs within ``ride_along_reach`` of the scanner that kept their place
-        in its frame since the previous frame (a blob of then within half their world
-        displacement of the same scanner-frame place) while they moved at least
+        """Mask (None: none): motion blobs within ``ride_along_reach`` of the scanner that
+        kept their place in its frame since the previous frame (a blob of then within half
+        their world displacement of the same scanner-frame place) while they moved at least
         ``RIDE_MIN_TRAVEL`` in the world: the robot's own body, before the self-mask has
         learnt it. Remembers this frame's. (People are not filtered: someone walking beside
         the robot keeps their place in its frame too, and the body is learnt before a
@@ -243,6 +245,17 @@ def _segments(segments: Segments) -> tuple[np.ndarray, np.ndarray]:
     n = xy.shape[0]
     xy, ok = _finite_rows(xy, segments.leg)
     return xy, _aligned(segments.leg, ok, n, 1.0)
+
+
+def _view(view: View) -> View:
+    """``view`` as float arrays of one length (an empty view where they differ: a malformed
+    message; NaN bearings are dropped)."""
+    bearing = np.asarray(view.bearing, dtype=float).reshape(-1)
+    reach = np.asarray(view.reach, dtype=float).reshape(-1)
+    if bearing.shape[0] != reach.shape[0]:
+        return View()
+    ok = ~np.isnan(bearing) & ~np.isnan(reach)
+    return View(bearing, reach) if ok.all() else View(bearing[ok], reach[ok])
 
 
 def _finite_rows(xy: np.ndarray, values) -> tuple[np.ndarray, np.ndarray | None]:
