@@ -524,7 +524,7 @@ def test_a_view_of_mismatched_lengths_is_no_view():
     assert len(_view(View(np.zeros(5), np.zeros(4)))) == 0
     v = _view(View(np.array([0.0, np.nan, 0.1]), np.array([1.0, 2.0, np.nan])))
     assert v.bearing.tolist() == [0.0] and v.reach.tolist() == [1.0]
-    for n in (3, 4):                  # 3 and 4 beams: one reach for each, or one too few
+    for n in (3, 4):                  # 4 bearings with 3 reaches (malformed), or 4
         tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
         for k in range(7):
             d = frame(k * DT, *(() if k == 6 else ((1.0 + k * DT, 0.0),)))

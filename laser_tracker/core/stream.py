@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+import statistics
 from collections import Counter, OrderedDict, deque
 from collections.abc import Callable, Iterable
 from typing import Generic, TypeVar
@@ -195,19 +196,13 @@ class ClockOffset:
         if len(self._scans) < self._scans.maxlen or \
                 len(self._odometry) < self._odometry.maxlen:
             return False
-        difference = _median(self._scans) - _median(self._odometry)
+        difference = statistics.median(self._scans) - statistics.median(self._odometry)
         offset = difference if abs(difference) > self.tolerance else 0.0
         changed = abs(offset - self.offset) > self.tolerance
         if changed or (offset == 0.0) != (self.offset == 0.0):
             self.offset = offset
             return True
         return False
-
-
-def _median(values) -> float:
-    ordered = sorted(values)
-    n = len(ordered)
-    return 0.5 * (ordered[(n - 1) // 2] + ordered[n // 2])
 
 
 class StampPairer:
