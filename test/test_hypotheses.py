@@ -725,3 +725,28 @@ def test_a_patch_that_keeps_its_place_beside_a_turning_scanner_is_not_confirmed(
     assert not run(0.3)
     assert run(0.0)
     assert run(0.3, away=1.2)
+
+
+def test_a_patch_riding_with_the_scanner_on_lone_legs_is_not_confirmed():
+    """The scanner drives at 0.5 m/s; a patch 1.2 m to its side keeps its place in the
+    scanner's frame (where the field of view ends on a wall), and every other scan it is
+    also detected as a lone leg: of kind person, but only ever one leg, so it is taken for
+    what rides along and not confirmed. Seen as two legs apart (someone who walks beside the
+    robot) it is confirmed."""
+    def run(spread):
+        tr = HypothesisTracker(HypothesisConfig(ride_along_reach=0.0), KalmanConfig())
+        for k in range(12):
+            t = k * DT
+            scanner = np.array([0.5 * t, 0.0, 0.0])
+            xy = scanner[:2] + (0.2, -1.2)
+            d = frame(t, xy)
+            d.origin = scanner
+            if k % 2:
+                d.people = People(xy=np.array([xy]), confidence=np.array([0.45]),
+                                  free=np.zeros(1, bool), spread=np.array([spread]),
+                                  static=np.zeros(1, bool))
+            tr.update(d)
+        return tr.hyp
+    lone = run(np.nan)
+    assert len(lone) and lone.person_samples.max() >= 2 and not lone.confirmed.any()
+    assert run(0.3).confirmed.any()

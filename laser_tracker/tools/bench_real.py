@@ -43,6 +43,10 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
   drives through a real building, scored as the leg scenes, pooled over the six;
   ``leg_scenes_driving_inf_odometry``: the same scenes with wheel odometry and the mount on
   /tf (as ``negative_2_inf_odometry``; three draws, pooled).
+* ``..._reversed``: Freiburg (both noise models, four draws each), MIT, ``negative_2_inf``
+  and the people of the leg and driving scenes played backwards (``tools.reverse``): the
+  robot drives in reverse with its scanners looking where it came from, people walk the
+  other way; what of the defaults depends on the direction of time.
 
 What is not present is reported as missing, never failed. It takes a few minutes
 (``--jobs 2`` on a free 2-core machine halves it).
@@ -82,6 +86,9 @@ OTHER_SCANNERS = (('half_beams', 2, 1), ('half_rate', 1, 2))
 RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf')
                     for name, _, _ in OTHER_SCANNERS) + (
     'negative_2_inf_odometry', 'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry')
+#: Recordings also replayed backwards (``tools.reverse``): ``<name>_reversed``.
+REVERSED = ('freiburg', 'mit_csail', 'negative_2_inf', 'leg_scenes_inf', 'leg_scenes_driving_inf')
+RECORDINGS += tuple(f'{base}_reversed' for base in REVERSED)
 #: ``negative_2_inf_odometry``: where each scanner is taken to sit on the base (x, y, yaw),
 #: as on a robot with two front corner scanners turned outwards and one facing back, and the
 #: rate (Hz), noise model and draws (one replay each) of the wheel odometry made for it.
@@ -151,8 +158,6 @@ def rewrite_scans(src: Path, dst: Path, scan_topics, beam_step: int = 1,
 
 def _recordings(work: Path) -> dict:
     """name -> (bag, scan topic, scoring) for what is available (importing logs)."""
-    from laser_tracker.tools.import_carmen import convert
-
     found = {}
     pf = real_recording('leg_tracker/person_following_outdoor_1.bag')
     if pf.exists():
@@ -164,10 +169,7 @@ def _recordings(work: Path) -> dict:
                                           'reference')
     mit = real_recording('carmen/mit-csail.clf')
     if mit.exists():
-        out = work / 'mit_csail'
-        if not out.exists():
-            convert(mit, out)
-        found['mit_csail'] = (out, '/scan', 'ego')
+        found['mit_csail'] = (_mit(work, mit), '/scan', 'ego')
     demo = real_recording('leg_tracker/demo_stationary_simple_environment.bag')
     if demo.exists():
         found['leg_demo'] = (demo, '/scan', 'unlabelled')
@@ -186,6 +188,16 @@ def _negative_inf(work: Path, negative: Path) -> Path:
     if not inf.exists():
         rewrite_scans(negative, inf, NEGATIVE_TOPICS)
     return inf
+
+
+def _mit(work: Path, log: Path) -> Path:
+    """The MIT CSAIL log imported (once), with its own odometry."""
+    from laser_tracker.tools.import_carmen import convert
+
+    out = work / 'mit_csail'
+    if not out.exists():
+        convert(log, out)
+    return out
 
 
 def _freiburg(work: Path, log: Path, noise: str, seed: int) -> Path:
@@ -301,6 +313,48 @@ def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
             part for seed in SCENE_ODOMETRY_SEEDS for part in _scene_parts(
                 work, f'_driving_inf_odometry_seed{seed}',
                 functools.partial(with_odometry, seed=seed), with_detector)]
+    return found
+
+
+def _reversed(work: Path, names, with_detector: bool) -> dict:
+    """name -> [(bag, scan topic, scoring, extras)] for the ``_reversed`` rows asked for:
+    each recording played backwards (``tools.reverse``), written once: Freiburg with both
+    noise models and the draws of ``freiburg_other_noise`` too (eight replays), MIT, the
+    three scanners of ``negative_2_inf``, and the people of the leg-labelled scenes and of
+    the driving scenes, each scene's annotations after their scan."""
+    from laser_tracker.tools.annotations import ANNOTATION_TOPIC, register_person_type
+    from laser_tracker.tools.bag import TYPESTORE
+    from laser_tracker.tools.reverse import write_reversed
+
+    def backwards(bag: Path, attached=()) -> Path:
+        out = work / f'{bag.name}_reversed'
+        if not out.exists():
+            write_reversed(bag, out, attached)
+        return out
+
+    wanted = {f'{base}_reversed' for base in REVERSED} & set(names)
+    found: dict = {}
+    log = real_recording('carmen/freiburg-079-part1-corrected.log.gz')
+    if 'freiburg_reversed' in wanted and log.exists():
+        found['freiburg_reversed'] = [
+            (backwards(_freiburg(work, log, noise, seed)), '/scan', 'reference', None)
+            for noise in FREIBURG_NOISE for seed in (0,) + OTHER_NOISE_SEEDS]
+    mit = real_recording('carmen/mit-csail.clf')
+    if 'mit_csail_reversed' in wanted and mit.exists():
+        found['mit_csail_reversed'] = [(backwards(_mit(work, mit)), '/scan', 'ego', None)]
+    negative = real_recording('leg_tracker/training/negative_2.bag')
+    if 'negative_2_inf_reversed' in wanted and negative.exists():
+        bag = backwards(_negative_inf(work, negative))
+        found['negative_2_inf_reversed'] = [(bag, t, 'negative', None) for t in NEGATIVE_TOPICS]
+    register_person_type(TYPESTORE)
+    scenes = _leg_scenes(work, ['leg_scenes_inf'] * ('leg_scenes_inf_reversed' in wanted),
+                         with_detector)
+    scenes.update(_driving_scenes(
+        work, ['leg_scenes_driving_inf'] * ('leg_scenes_driving_inf_reversed' in wanted),
+        with_detector))
+    for name, parts in scenes.items():
+        found[f'{name}_reversed'] = [(backwards(bag, (ANNOTATION_TOPIC,)), '/scan', 'scene',
+                                      extra) for bag, extra in parts]
     return found
 
 
@@ -518,6 +572,7 @@ def run(args: argparse.Namespace) -> int:
                       for n, parts in _with_odometry(work, names).items()})
         found.update({n: [(bag, '/scan', 'reference', None) for bag in parts]
                       for n, parts in _other_noise(work, names).items()})
+        found.update(_reversed(work, names, detector))
         jobs = []
         for name in names:
             if name not in found:

@@ -66,7 +66,9 @@ def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
     at normal incidence, the robot's own parts); nor one that has, on average since it
     started, moved that slowly in the scanner's frame and at least ``ride_along_min_speed``
     in the world (the filter's velocity lags behind a part of the robot that turns with
-    it)."""
+    it). A person who walks with the robot shows both legs apart now and then: one seen only
+    as a lone leg (the edge of a wall where the field of view ends looks like one) is not
+    taken for a person here."""
     h = candidates
     age = np.maximum(frame.stamp - h.born, 1e-9)
     world, local = _travel(h, frame)
@@ -77,7 +79,8 @@ def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
         arm = h.position - frame.scanner.pose[:2]
         rigid = velocity + turn * np.column_stack((-arm[:, 1], arm[:, 0]))
         riding |= np.hypot(*(h.velocity - rigid).T) < c.ride_along_speed
-    return ~(riding & ~h.is_person(c.person_kind_samples))
+    person = h.is_person(c.person_kind_samples) & (h.pair_samples > 0)
+    return ~(riding & ~person)
 
 
 def old_enough(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
