@@ -502,6 +502,31 @@ def test_refused_matches_never_restart_and_reseed_the_map():
         assert motion_error(b.motion, (0.1, 0.0, 0.0))[0] < 0.005
 
 
+def test_after_a_gap_without_odometry_the_map_is_reseeded_at_once_when_asked():
+    """No scans for 3 s and no odometry, while the platform went from a room into a hall
+    the map does not know: the first match is refused. With ``max_gap`` 2 s the map is
+    re-seeded from that scan at once and the next scans match (the motion right from the
+    second scan after the gap); by default (0) the platform coasts for ``max_lost_scans``
+    scans first."""
+    def run(max_gap):
+        est, path, scan = _stream(EgoMotionConfig(max_gap=max_gap))
+        for k in range(3):
+            est.update(scan(k))
+        rng = np.random.default_rng(4)
+        hall = segments_of([box(-20.0, -9.0, 20.0, 9.0), [(3.0, -9.0), (3.0, -5.0)],
+                            box(1.0, 2.0, 1.6, 2.3)])
+        return [est.update(cast(hall, (0.1 * j, 0.0, 0.0), sigma=0.005, rng=rng,
+                                stamp=3.4 + 0.2 * j)) for j in range(7)]
+    at_once = run(2.0)
+    assert at_once[0].source == SOURCE_CONSTANT_VELOCITY and 're-seeded' in at_once[0].reason
+    assert all(e.source in (SOURCE_ICP, SOURCE_PARTIAL) for e in at_once[1:])
+    for e in at_once[2:]:
+        assert motion_error(e.motion, (0.1, 0.0, 0.0))[0] < 0.005
+    coasting = run(0.0)
+    assert [e.source for e in coasting[:5]] == [SOURCE_CONSTANT_VELOCITY] * 5
+    assert 're-seeded' in coasting[4].reason and 're-seeded' not in coasting[0].reason
+
+
 def test_odometry_jump_and_refused_match_coast_on_constant_velocity():
     est, path, scan = _stream()
     for k in range(3):

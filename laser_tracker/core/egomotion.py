@@ -55,8 +55,9 @@ Method (per scan):
    A refused match never restarts the pose chain: the platform coasts on its prediction
    (source ``odometry`` or ``constant_velocity``, ``coasting`` True; detection gates such a
    scan, see ``difference.pose_quality``). After ``max_lost_scans`` scans in a row without a
-   match (or at once when the map is too small to match against) the local map is re-seeded
-   from the current scan at its coasted pose; the pose chain goes on.
+   match (or at once when the map is too small to match against, or when the scan comes
+   more than ``max_gap`` after the previous one with no odometry across the gap) the local
+   map is re-seeded from the current scan at its coasted pose; the pose chain goes on.
 
 Sources: ``init`` (first scan or an explicit reset: pose = odometry pose or the origin,
 motion 0), ``icp``, ``icp_partial`` (ICP with the prediction along the degenerate
@@ -254,6 +255,13 @@ class EgoMotionConfig:
         5, 'After this many scans in a row without an accepted match (the platform coasting '
         'on its motion model) the local map is re-seeded from the current scan; the pose '
         'chain continues.', min=1, max=100000)
+    max_gap: float = param(
+        0.0, 'A scan more than this (s) after the previous one, with no odometry across the '
+        'gap, whose match is refused re-seeds the local map at once (where the platform went '
+        'meanwhile is unknown, so later matches against the old map fail too), instead of '
+        'after max_lost_scans. The pose chain continues. 0 = off (the default and the paper: '
+        'the scans coasted until then are no detection\'s, see README.md, "Ego-motion").',
+        min=0.0, max=3600.0)
     speed_check_jitter: float = param(
         0.05, 'The platform speed checks allow the motion of the time step plus this (s): '
         'scan stamps jitter.', min=0.0, max=10.0)
@@ -748,11 +756,13 @@ _HAS_POSE, _POSE, _STAMP, _HAS_MOTION, _MOTION, _DT, _HAS_ODO, _ODO, _SEGMENT, _
 #: match's checks (:attr:`ScanMatcher.checks`), and 2.0 (the pow exponent).
 _S = _layout(('min_points', 1), ('max_points', 1), ('min_range', 1), ('max_range', 1),
              ('speed', 1), ('turn', 1), ('jitter', 1), ('correction_t', 1),
-             ('correction_r', 1), ('max_lost', 1), ('key_t', 1), ('key_r', 1),
+             ('correction_r', 1), ('max_lost', 1), ('max_gap', 1), ('key_t', 1),
+             ('key_r', 1),
              ('normal_gap', 1), ('mounted', 1), ('mount', 3), ('two', 1), ('adaptive', 1),
              ('unknown', 3), ('fixed', 12), ('noise', 3), ('checks', 9))
 _S_MIN_POINTS, _S_MAX_POINTS, _S_MIN_RANGE, _S_MAX_RANGE, _S_SPEED, _S_TURN, _S_JITTER, \
-    _S_CORRECTION_T, _S_CORRECTION_R, _S_MAX_LOST, _S_KEY_T, _S_KEY_R, _S_NORMAL_GAP, \
+    _S_CORRECTION_T, _S_CORRECTION_R, _S_MAX_LOST, _S_MAX_GAP, _S_KEY_T, _S_KEY_R, \
+    _S_NORMAL_GAP, \
     _S_MOUNTED, _S_MOUNT, _S_TWO, _S_ADAPTIVE, _S_UNKNOWN, _S_FIXED, _S_NOISE, _S_CHECKS, \
     _SETTINGS = _S.values()
 
@@ -860,8 +870,9 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
         map_ok = n_map >= settings[_S_MIN_POINTS]
         if matched or not map_ok:      # a match was tried and refused, or nothing to match
             lost += 1.0
-        reseed = n_pts >= settings[_S_MIN_POINTS] and (not map_ok
-                                                       or lost >= settings[_S_MAX_LOST])
+        after_gap = not has_inc and 0.0 < settings[_S_MAX_GAP] < dt
+        reseed = n_pts >= settings[_S_MIN_POINTS] and (
+            not map_ok or lost >= settings[_S_MAX_LOST] or after_gap)
         motion = motion_p
         cov = np.zeros((3, 3))
         for k in range(3):
@@ -1332,7 +1343,7 @@ def _settings(config: EgoMotionConfig, prior: MotionPrior, matcher: ScanMatcher)
     out = np.array([c.min_points, c.max_points, c.min_range, c.max_range,
                     c.max_translation_speed, c.max_rotation_speed, c.speed_check_jitter,
                     c.max_correction_translation, c.max_correction_rotation,
-                    c.max_lost_scans, c.map_min_translation, c.map_min_rotation,
+                    c.max_lost_scans, c.max_gap, c.map_min_translation, c.map_min_rotation,
                     c.normal_max_gap, float(any(mount)), *mount, 2.0, *prior.settings(),
                     *matcher.checks], dtype=float)
     assert out.size == _SETTINGS
@@ -1491,9 +1502,12 @@ class EgoMotionEstimator:
                            f'odometry ({no_inc}): constant-velocity motion')
             if v[_O_RESEED]:
                 reason += '; local map re-seeded from this scan'
-                self._note('map re-seeded', f'scan at {t:.3f} s: {int(v[_O_LOST])} scans '
-                           f'without a match: the local map is re-seeded from this scan (the '
-                           f'pose chain continues)')
+                gap = v[_O_DT]
+                after = f'{gap:.2f} s since the previous scan, no odometry across' \
+                    if not has_inc and 0.0 < self.config.max_gap < gap \
+                    else f'{int(v[_O_LOST])} scans without a match'
+                self._note('map re-seeded', f'scan at {t:.3f} s: {after}: the local map is '
+                           f're-seeded from this scan (the pose chain continues)')
                 self.stats['map re-seeded'] += 1
         self.stats[source] += 1
         diag = {}
