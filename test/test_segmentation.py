@@ -210,3 +210,32 @@ def test_scanning_direction_does_not_matter():
     assert a.count == b.count > 0
     np.testing.assert_allclose(a.features[np.lexsort(a.xy.T)], b.features[np.lexsort(b.xy.T)],
                                atol=1e-9)
+
+
+def test_a_scan_that_closes_the_circle_is_segmented_around_its_seam():
+    """A 360 deg scanner whose scans start straight ahead: a leg on the seam, one just beside
+    it, and a nearer object just across the seam from a third leg's end (its clearance is
+    found around the seam). Its clusters and their features are those of the same scan
+    started behind the scanner, and a cluster on the seam runs from the last beams to the
+    first ones."""
+    n = 720
+    things = dict(circles=((2.0, 0.0, 0.06), (2.0, 0.3, 0.06), (3.0, -0.25, 0.06),
+                           (1.5, 0.12, 0.05)),
+                  walls=((4.0, -3.0, 4.0, 3.0),), n_beams=n, fov=2 * np.pi * (n - 1) / n)
+    ahead = scene(**things, angle_min=0.0)
+    behind = Scan(stamp=0.0, ranges=np.roll(ahead.ranges, n // 2), angle_min=-np.pi,
+                  angle_increment=ahead.angle_increment, range_min=ahead.range_min,
+                  range_max=ahead.range_max)
+    a, b = segment(ahead), segment(behind)
+    assert a.count == b.count >= 4
+    order_a, order_b = np.lexsort(a.xy.T), np.lexsort(b.xy.T)
+    np.testing.assert_allclose(a.xy[order_a], b.xy[order_b], atol=1e-9)
+    np.testing.assert_allclose(a.features[order_a], b.features[order_b], atol=1e-9)
+    on_seam = np.argmin(np.hypot(*(a.xy - (2.0, 0.0)).T))
+    assert a.first[on_seam] > a.last[on_seam]           # from the last beams to the first
+    assert a.n_points[on_seam] == a.last[on_seam] + n - a.first[on_seam] + 1
+    # a scan one beam short of the circle does not close it: the seam splits that leg
+    short = Scan(stamp=0.0, ranges=ahead.ranges[:-2], angle_min=0.0,
+                 angle_increment=ahead.angle_increment, range_min=ahead.range_min,
+                 range_max=ahead.range_max)
+    assert np.hypot(*(segment(short).xy - (2.0, 0.0)).T).min() > 0.01

@@ -148,11 +148,11 @@ def _decision(features, feature, threshold, value, bias):
 
 @jit.kernel
 def _classified(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_width,
-                max_range, feature, threshold, value, bias):
+                max_range, closed, feature, threshold, value, bias):
     """The scan's segments (``segmentation._clusters``) and the exponents of their leg
     probabilities (:func:`_exponents` of their raw scores), in one call."""
     clusters = _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points,
-                         max_width, max_range)
+                         max_width, max_range, closed)
     return clusters, _exponents(_decision(clusters[3], feature, threshold, value, bias))
 
 
@@ -355,10 +355,10 @@ class PersonDetector:
         """The scan's segments within ``max_range`` and their leg probabilities (one kernel
         call)."""
         s = self.segments
-        raw, w = _classified(*kernel_arguments(scan, s.jump_distance, s.min_points,
-                                               s.max_width, self.config.max_range),
-                             *self.classifier.arrays)
-        return as_clusters(raw), _logistic(w)
+        args, seam = kernel_arguments(scan, s.jump_distance, s.min_points, s.max_width,
+                                      self.config.max_range)
+        raw, w = _classified(*args, *self.classifier.arrays)
+        return as_clusters(raw, seam), _logistic(w)
 
     def detect(self, scan: Scan) -> PersonDetections:
         c = self.config

@@ -1,7 +1,9 @@
 """Split one scan into segments by jump distance and describe each segment's shape.
 
 A segment (a cluster) is a run of consecutive valid end points (beam order, beams without a
-return skipped) in which each point lies within ``jump_distance`` of the previous one. The
+return skipped) in which each point lies within ``jump_distance`` of the previous one; on a
+scan that closes the circle (a 360 deg scanner) the run goes on from the last beam to the
+first, and the beams beside a cluster's ends are taken around it too. The
 scan's segments (:class:`SegmentConfig`, ``segments.*``) are what the person detector
 classifies and, when it does not run, the compact segments that keep a stopped object's
 track alive: one segmentation, one kernel call per scan (:func:`segment`). The features
@@ -122,8 +124,8 @@ def segment(scan: Scan, jump_distance: float = 0.13, min_points: int = 3,
     """Clusters of ``scan`` with at least ``min_points`` (>= 3) points, at most ``max_width``
     metres between their ends and their centroid within ``max_range``, with their features:
     one kernel call."""
-    return as_clusters(_clusters(*kernel_arguments(scan, jump_distance, min_points, max_width,
-                                                   max_range)))
+    args, seam = kernel_arguments(scan, jump_distance, min_points, max_width, max_range)
+    return as_clusters(_clusters(*args), seam)
 
 
 def segments_of(scan: Scan, config: SegmentConfig, max_range: float | None = None) -> Clusters:
@@ -132,19 +134,58 @@ def segments_of(scan: Scan, config: SegmentConfig, max_range: float | None = Non
 
 
 def kernel_arguments(scan: Scan, jump_distance: float, min_points: int, max_width: float,
-                     max_range: float | None) -> tuple:
-    """The arguments of :func:`_clusters` for :func:`segment`'s."""
+                     max_range: float | None) -> tuple[tuple, tuple[int, int]]:
+    """The arguments of :func:`_clusters` for :func:`segment`'s, and the seam: ``(beam,
+    beams)``, where a scan that closes the circle was made to start (:func:`seam_beam`; the
+    kernel's beam indices count from there)."""
     _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams)
-    return (scan.ranges, cos, sin, max(scan.range_min, 1e-6), float(scan.range_max),
-            abs(float(scan.angle_increment)), float(jump_distance), max(int(min_points), 3),
-            float(max_width), np.inf if max_range is None else float(max_range))
+    ranges, valid_min, range_max = scan.ranges, max(scan.range_min, 1e-6), float(scan.range_max)
+    start = seam_beam(ranges, cos, sin, valid_min, range_max, float(scan.angle_increment),
+                      float(jump_distance))
+    if start:
+        ranges, cos, sin = (np.roll(a, -start) for a in (ranges, cos, sin))
+        cos.setflags(write=False)           # as beam_table's: the kernels' compiled types
+        sin.setflags(write=False)
+    return (ranges, cos, sin, valid_min, range_max, abs(float(scan.angle_increment)),
+            float(jump_distance), max(int(min_points), 3), float(max_width),
+            np.inf if max_range is None else float(max_range),
+            closes_circle(scan.n_beams, float(scan.angle_increment))), (start, scan.n_beams)
 
 
-def as_clusters(raw: tuple) -> Clusters:
-    """:class:`Clusters` of :func:`_clusters`' result."""
+def closes_circle(beams: int, increment: float) -> bool:
+    """Whether a scan of ``beams`` beams ``increment`` apart closes the circle (its last beam
+    beside its first: a 360 deg scanner)."""
+    step = abs(increment)
+    return beams >= 2 and beams * step >= 2.0 * math.pi - 0.5 * step
+
+
+def seam_beam(ranges, cos, sin, valid_min: float, range_max: float, increment: float,
+              jump: float) -> int:
+    """Where to start a scan that closes the circle (a 360 deg scanner: its last beam beside
+    its first) so that no segment straddles its two ends: the first return more than
+    ``jump`` from the return before it, around the circle. 0 for a scan that does not close
+    the circle, or whose two ends already lie apart."""
+    if not closes_circle(ranges.size, increment):
+        return 0
+    beams = np.flatnonzero((ranges >= valid_min) & (ranges < range_max))
+    if beams.size < 2:
+        return 0
+    x, y = ranges[beams] * cos[beams], ranges[beams] * sin[beams]
+    apart = np.flatnonzero(np.hypot(x - np.roll(x, 1), y - np.roll(y, 1)) > jump)
+    if not apart.size or apart[0] == 0:
+        return 0
+    return int(beams[apart[0]])
+
+
+def as_clusters(raw: tuple, seam: tuple[int, int] = (0, 0)) -> Clusters:
+    """:class:`Clusters` of :func:`_clusters`' result (``seam``: where the kernel's scan
+    started, see :func:`kernel_arguments`)."""
     xy, ends, n_points, features, clear, total = raw
     if xy.shape[0] == 0:
         return Clusters.empty(total=total)
+    start, beams = seam
+    if start:
+        ends = (ends + start) % beams
     return Clusters(xy=xy, first=ends[:, 0], last=ends[:, 1], n_points=n_points,
                     features=features, occluded=clear < 0.0, total=total)
 
@@ -154,12 +195,13 @@ def as_clusters(raw: tuple) -> Clusters:
 
 @jit.kernel
 def _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_width,
-              max_range):
+              max_range, closed):
     """The clusters of a scan (see :func:`segment`) that pass the filters: centroids, first
     and last beams, points, features, the clearances of the first and the last end; and how
     many clusters there were before the filters. Sums over a cluster's points are added as
     ``np.add.reduceat`` adds them (:func:`_reduceat`), so that the features stay those of
-    the numpy formulation bit for bit."""
+    the numpy formulation bit for bit. ``closed``: the scan closes the circle (its last beam
+    beside its first), so the beams beside an end are taken around it."""
     n = ranges.size
     beams = np.empty(n, np.intp)
     m = 0
@@ -221,10 +263,10 @@ def _clusters(ranges, cos, sin, valid_min, range_max, da, jump, min_points, max_
             beam = beams[a] if e == 0 else beams[b]
             r = ranges[beam]
             span = int(min(math.ceil(CLEARANCE / (r * da)), math.ceil(MAX_WINDOW_ANGLE / da)))
-            if e == 0:
-                near = _window_min(free, max(beam - span, 0), beam - 1)
-            else:
-                near = _window_min(free, beam + 1, min(beam + span, n - 1))
+            lo, hi = (beam - span, beam - 1) if e == 0 else (beam + 1, beam + span)
+            if not closed:
+                lo, hi = max(lo, 0), min(hi, n - 1)
+            near = _window_min(free, lo, hi, n)
             clear[kept, e] = min(max(near - r, -MAX_CLEAR), MAX_CLEAR)  # inf: nothing there
         c0, c1 = clear[kept, 0], clear[kept, 1]
         f[9] = (1.0 if c0 < 0.0 else 0.0) + (1.0 if c1 < 0.0 else 0.0)
@@ -299,11 +341,12 @@ def _at_least(x, low):
 
 
 @jit.kernel
-def _window_min(values, lo, hi):
-    """``min(values[lo:hi + 1])``, inf when the window is empty (hi < lo)."""
+def _window_min(values, lo, hi, n):
+    """``min(values[lo:hi + 1])`` with the indices taken modulo ``n`` (around a scan that
+    closes the circle), inf when the window is empty (hi < lo)."""
     out = np.inf
     for i in range(lo, hi + 1):
-        out = min(out, values[i])
+        out = min(out, values[i % n])
     return out
 
 
@@ -311,4 +354,4 @@ def window_min(values: np.ndarray, lo, hi) -> np.ndarray:
     """``min(values[lo[i]:hi[i] + 1])`` for each i (``0 <= lo <= values.size``,
     ``-1 <= hi < values.size``), inf where the window is empty (hi < lo)."""
     values = np.asarray(values, dtype=float)
-    return np.array([_window_min(values, int(a), int(b)) for a, b in zip(lo, hi)])
+    return np.array([_window_min(values, int(a), int(b), values.size) for a, b in zip(lo, hi)])
