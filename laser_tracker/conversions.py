@@ -565,7 +565,9 @@ def decode_body(text: str):
 @dataclass
 class PlanarTransform:
     """The planar content of a geometry_msgs/TransformStamped: frame ``child``'s pose
-    ``(x, y, yaw)`` in frame ``parent`` (a sensor mount: base_link -> laser)."""
+    ``(x, y, yaw)`` in frame ``parent`` (a sensor mount: base_link -> laser); ``tilt``: the
+    angle (rad) between the two frames' z axes, which the planar pose leaves out (0: level;
+    pi: the child upside down, its scans mirrored)."""
 
     stamp: float
     parent: str
@@ -573,6 +575,7 @@ class PlanarTransform:
     x: float
     y: float
     yaw: float
+    tilt: float = 0.0
 
 
 def transforms_from_msg(msg) -> list[PlanarTransform]:
@@ -585,8 +588,17 @@ def transforms_from_msg(msg) -> list[PlanarTransform]:
                                    parent=str(t.header.frame_id).lstrip('/'),
                                    child=str(t.child_frame_id).lstrip('/'),
                                    x=float(tr.translation.x), y=float(tr.translation.y),
-                                   yaw=yaw_from_quaternion(tr.rotation)))
+                                   yaw=yaw_from_quaternion(tr.rotation),
+                                   tilt=tilt_from_quaternion(tr.rotation)))
     return out
+
+
+def tilt_from_quaternion(q) -> float:
+    """The angle (rad) between a rotated frame's z axis and the unrotated one's."""
+    norm = q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w
+    if not norm > 0.0:
+        return 0.0
+    return math.acos(min(max(1.0 - 2.0 * (q.x * q.x + q.y * q.y) / norm, -1.0), 1.0))
 
 
 def transforms_to_msg(factory: MessageFactory, transforms) -> Any:

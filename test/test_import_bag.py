@@ -268,3 +268,43 @@ def test_a_ros1_recording_with_its_odometry_and_mount_only_on_tf_replays_with_bo
     assert mount['source'] == '/tf'
     assert (mount['x'], mount['y'], mount['yaw']) == pytest.approx((0.2, 0.1, 0.3))
     assert 'odometry from /tf (odom -> base_footprint)' in capsys.readouterr().err
+
+
+def test_a_scanner_mounted_upside_down_is_said_not_taken_as_level(tmp_path, capsys):
+    """The recording's /tf_static hangs the scanner upside down under the base (rolled
+    180 deg, turned 0.5 rad): its scans are mirrored, which the planar mount cannot carry,
+    so replay says so; a scanner pitched 10 deg down towards the floor passes without a
+    word."""
+    import math
+
+    from laser_tracker.conversions import PlanarTransform, transforms_from_msg, \
+        transforms_to_msg
+    from laser_tracker.tools.bag import FACTORY, LATCHED_QOS, BagWriter
+    from laser_tracker.tools.mount import recording_mount
+    from laser_tracker.core.egomotion import EgoMotionConfig
+
+    def recording(name, rotation):
+        out = tmp_path / name
+        with BagWriter(out) as bag:
+            tf = transforms_to_msg(FACTORY, [PlanarTransform(0.0, 'base_link', 'laser', 0.3,
+                                                             -0.1, 0.5)])
+            for key, value in rotation.items():
+                setattr(tf.transforms[0].transform.rotation, key, value)
+            bag.write('/tf_static', tf, 1.0, qos=LATCHED_QOS)
+            for topic, t_ns, msg in iter_messages(_import(_ros1_bag(tmp_path / f'{name}.bag'),
+                                                          tmp_path / f'{name}_so'),
+                                                  ['/scan', '/base/odom']):
+                bag.write(topic, msg, t_ns)
+        return out, transforms_from_msg(tf)[0]
+
+    upside_down, tr = recording('upside_down', dict(x=math.cos(0.25), y=math.sin(0.25), z=0.0,
+                                                    w=0.0))
+    assert tr.yaw == pytest.approx(0.5) and tr.tilt == pytest.approx(math.pi)
+    mount = recording_mount(upside_down, '/scan', '/base/odom', EgoMotionConfig())
+    assert (mount.x, mount.y, mount.yaw) == pytest.approx((0.3, -0.1, 0.5))
+    assert 'upside down' in mount.message and 'tilted 180 deg' in mount.message
+    pitched, tr = recording('pitched', dict(x=0.0, y=math.sin(math.radians(5)), z=0.0,
+                                            w=math.cos(math.radians(5))))
+    assert tr.tilt == pytest.approx(math.radians(10))
+    assert 'warning' not in recording_mount(pitched, '/scan', '/base/odom',
+                                            EgoMotionConfig()).message

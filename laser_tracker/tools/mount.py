@@ -26,6 +26,8 @@ from laser_tracker.core.geometry import compose, inverse
 
 TF_TYPES = ('tf2_msgs/msg/TFMessage', 'tf/msg/tfMessage')
 MAX_TF_MESSAGES = 2000     # /tf is read only until the mount is found, or this many messages
+#: A scanner tilted more than this (rad) from its base is not taken as level without a word.
+MAX_TILT = math.radians(30.0)
 
 
 @dataclass
@@ -97,6 +99,28 @@ def tf_odometry(path: str | Path, scan_topic: str, odom_frame: str) -> TfOdometr
     return None
 
 
+def path_tilt(tilts: dict, source: str, target: str) -> float:
+    """The angle (rad) between the z axes of ``source`` and ``target`` along the frame tree
+    of ``tilts`` (``{(parent, child): tilt}``, :class:`PlanarTransform`'s), taking each
+    link's tilt about a level axis (a mount pitched or rolled, or upside down); 0 when not
+    connected."""
+    graph: dict[str, list] = {}
+    for (parent, child), tilt in tilts.items():
+        graph.setdefault(parent, []).append((child, tilt))
+        graph.setdefault(child, []).append((parent, tilt))
+    up = {source: 1.0}                  # cosine of the tilt so far
+    queue = deque([source])
+    while queue:
+        frame = queue.popleft()
+        if frame == target:
+            return math.acos(min(max(up[frame], -1.0), 1.0))
+        for nxt, tilt in graph.get(frame, []):
+            if nxt not in up:
+                up[nxt] = up[frame] * math.cos(tilt)
+                queue.append(nxt)
+    return 0.0
+
+
 def find_transform(edges: dict, source: str, target: str):
     """Pose of ``target`` in ``source`` from planar edges ``{(parent, child): (x, y, yaw)}``,
     following the frame tree in either direction; None if they are not connected."""
@@ -140,10 +164,12 @@ def recording_mount(path: str | Path, scan_topic: str, odom_topic: str | None,
     tf_topics = sorted((t for t, (typ, _) in info.items() if typ in TF_TYPES),
                        key=lambda t: (t != '/tf_static', t))
     edges: dict = {}
+    tilts: dict = {}
     for topic in tf_topics:
         for k, (_, _, msg) in enumerate(iter_messages(path, [topic])):
             for tr in transforms_from_msg(msg):
                 edges.setdefault((tr.parent, tr.child), (tr.x, tr.y, tr.yaw))
+                tilts.setdefault((tr.parent, tr.child), tr.tilt)
             found = find_transform(edges, base_frame, scan_frame)
             if found is not None:
                 x, y, yaw = (float(v) for v in found)
@@ -152,6 +178,14 @@ def recording_mount(path: str | Path, scan_topic: str, odom_topic: str | None,
                         f'yaw={math.degrees(yaw):.1f} deg')
                 if has_config and not np.allclose(configured, (x, y, yaw), atol=1e-6):
                     text += ' (used instead of the configured ego_motion.mount_*)'
+                tilt = path_tilt(tilts, base_frame, scan_frame)
+                if tilt > MAX_TILT:
+                    text += (f'; warning: the scanner is tilted {math.degrees(tilt):.0f} deg '
+                             f'from {base_frame!r}' + (' (upside down: its scans are mirrored; '
+                                                       'flip them at the driver, e.g. '
+                                                       'sick_lms_driver inverted)'
+                                                       if tilt > math.pi / 2 else '')
+                             + ': laser_tracker takes scans as level')
                 return Mount(x, y, yaw, True, topic, text, **frames)
             if k >= MAX_TF_MESSAGES:
                 break
