@@ -104,32 +104,30 @@ def path_tilt(tilts: dict, source: str, target: str) -> float:
     of ``tilts`` (``{(parent, child): tilt}``, :class:`PlanarTransform`'s), taking each
     link's tilt about a level axis (a mount pitched or rolled, or upside down); 0 when not
     connected."""
-    graph: dict[str, list] = {}
-    for (parent, child), tilt in tilts.items():
-        graph.setdefault(parent, []).append((child, tilt))
-        graph.setdefault(child, []).append((parent, tilt))
-    up = {source: 1.0}                  # cosine of the tilt so far
-    queue = deque([source])
-    while queue:
-        frame = queue.popleft()
-        if frame == target:
-            return math.acos(min(max(up[frame], -1.0), 1.0))
-        for nxt, tilt in graph.get(frame, []):
-            if nxt not in up:
-                up[nxt] = up[frame] * math.cos(tilt)
-                queue.append(nxt)
-    return 0.0
+    links = {edge: (math.cos(tilt),) * 2 for edge, tilt in tilts.items()}
+    up = _along_tree(links, source, target, 1.0, lambda a, b: a * b)
+    return 0.0 if up is None else math.acos(min(max(up, -1.0), 1.0))
 
 
 def find_transform(edges: dict, source: str, target: str):
     """Pose of ``target`` in ``source`` from planar edges ``{(parent, child): (x, y, yaw)}``,
     following the frame tree in either direction; None if they are not connected."""
-    graph: dict[str, list] = {}
-    for (parent, child), pose in edges.items():
+    links = {}
+    for edge, pose in edges.items():
         p = np.asarray(pose, dtype=float)
-        graph.setdefault(parent, []).append((child, p))
-        graph.setdefault(child, []).append((parent, inverse(p)))
-    best = {source: np.zeros(3)}
+        links[edge] = (p, inverse(p))
+    return _along_tree(links, source, target, np.zeros(3), compose)
+
+
+def _along_tree(links: dict, source: str, target: str, start, combine):
+    """``start`` combined with each link's value from ``source`` to ``target`` (breadth
+    first over ``links``: ``{(parent, child): (value parent -> child, value child ->
+    parent)}``); None if they are not connected."""
+    graph: dict[str, list] = {}
+    for (parent, child), (forward, backward) in links.items():
+        graph.setdefault(parent, []).append((child, forward))
+        graph.setdefault(child, []).append((parent, backward))
+    best = {source: start}
     queue = deque([source])
     while queue:
         frame = queue.popleft()
@@ -137,7 +135,7 @@ def find_transform(edges: dict, source: str, target: str):
             return best[frame]
         for nxt, step in graph.get(frame, []):
             if nxt not in best:
-                best[nxt] = compose(best[frame], step)
+                best[nxt] = combine(best[frame], step)
                 queue.append(nxt)
     return None
 
