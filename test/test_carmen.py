@@ -207,6 +207,41 @@ def test_noisy_odometry_is_refused_for_a_raw_log(tmp_path, capsys):
     assert status == 2 and 'for corrected logs' in cap.err and not out.exists()
 
 
+
+def test_scan_period_stamps_the_scans_apart_in_the_logs_order(tmp_path, capsys):
+    """A subsampled log whose stamps go back once: the scans keep the log's order (the
+    drive's), stamped S apart, each scan's header with its receive time and its odometry."""
+    stamps = [100.0, 103.0, 102.5, 109.0]
+    text = ['# CARMEN Logfile\n']
+    for i, t in enumerate(stamps):
+        r = np.full(181, 1.0 + i)
+        r[-1] = 81.91                       # the log's no-return reading
+        text.append(_flaser_line(181, r, pose=(0.1 * i, 0.0, 0.0), odom=(0.2 * i, 0.0, 0.0),
+                                 stamp=t))
+    path = tmp_path / 'sub.log'
+    path.write_text(''.join(text))
+    status, cap = _cli(capsys, path, tmp_path / 'bag', '--scan-period', '0.5')
+    assert status == 0, cap.err
+    scans = list(read_scans(tmp_path / 'bag'))
+    assert [s.stamp for s in scans] == pytest.approx([100.0, 100.5, 101.0, 101.5])
+    assert [float(s.ranges[0]) for s in scans] == [1.0, 2.0, 3.0, 4.0]     # the log's order
+    odom = read_odometry(tmp_path / 'bag')
+    np.testing.assert_allclose(odom.stamps, [100.0, 100.5, 101.0, 101.5])
+    np.testing.assert_allclose(odom.poses[:, 0], [0.0, 0.2, 0.4, 0.6], atol=1e-9)
+    # without it, the stamps are sorted (the third line goes before the second)
+    status, cap = _cli(capsys, path, tmp_path / 'sorted')
+    assert [float(s.ranges[0]) for s in read_scans(tmp_path / 'sorted')] == [1.0, 3.0, 2.0, 4.0]
+
+
+def test_scan_period_is_refused_when_it_cannot_hold(tmp_path, capsys):
+    path = _write_log(tmp_path / 'raw.log', n_scans=3)      # ODOM lines of their own stamps
+    status, cap = _cli(capsys, path, tmp_path / 'bag', '--scan-period', '1')
+    assert status == 2 and 'ODOM lines' in cap.err and not (tmp_path / 'bag').exists()
+    for bad in ('0', '-1', 'nan'):
+        status, cap = _cli(capsys, path, tmp_path / 'bag', '--scan-period', bad)
+        assert status == 2 and '--scan-period must be a positive' in cap.err
+
+
 # ---------------------------------------------------------------- messy time stamps
 
 

@@ -16,6 +16,9 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
   one draw);
 * ``mit_csail``: the raw mit-csail log with its own odometry: false tracks per minute on
   static structure mapped with the replay's poses;
+* ``intel`` / ``aces``: the subsampled corrected logs of two other buildings (180 beams,
+  1 deg apart), replayed at one scan a second (``SUBSAMPLED_PERIOD``) with realistic
+  odometry noise: false tracks per minute on static structure;
 * ``leg_demo``: leg_tracker's stationary demo (people walking and standing, no labels):
   confirmed tracks per minute, by kind;
 * ``negative_2_left`` / ``_right`` / ``_rear``: leg_tracker's ``negative_2.bag``, one row per
@@ -75,7 +78,7 @@ NEGATIVE_SCANNERS = ('left', 'right', 'rear')
 #: Their scan topics in negative_2.bag.
 NEGATIVE_TOPICS = tuple(f'/{s}_scan' for s in NEGATIVE_SCANNERS)
 RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor',
-              'freiburg_other_noise', 'mit_csail', 'leg_demo') + tuple(
+              'freiburg_other_noise', 'mit_csail', 'intel', 'aces', 'leg_demo') + tuple(
     f'negative_2_{s}{e}' for e in ('', '_inf') for s in NEGATIVE_SCANNERS) + tuple(
     f'negative_2_{s}_unseen' for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
 #: Other scanners made of the recordings of one (its no-return readings as +inf): name, keep
@@ -86,6 +89,12 @@ OTHER_SCANNERS = (('half_beams', 2, 1), ('half_rate', 1, 2))
 RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf')
                     for name, _, _ in OTHER_SCANNERS) + (
     'negative_2_inf_odometry', 'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry')
+#: The subsampled corrected logs (Radish's intel and aces keep a scan every 0.6 to 1 m of the
+#: drive, 3 s apart): replayed with their scans this many seconds apart, the corrected poses
+#: with the Freiburg rows' realistic odometry noise (seed 0).
+SUBSAMPLED_LOGS = {'intel': 'carmen/intel-corrected.log.gz',
+                   'aces': 'carmen/aces-corrected.log.gz'}
+SUBSAMPLED_PERIOD = 1.0
 #: Recordings also replayed backwards (``tools.reverse``): ``<name>_reversed``.
 REVERSED = ('freiburg', 'mit_csail', 'negative_2_inf', 'leg_scenes_inf', 'leg_scenes_driving_inf')
 RECORDINGS += tuple(f'{base}_reversed' for base in REVERSED)
@@ -170,6 +179,10 @@ def _recordings(work: Path) -> dict:
     mit = real_recording('carmen/mit-csail.clf')
     if mit.exists():
         found['mit_csail'] = (_mit(work, mit), '/scan', 'ego')
+    for name, relative in SUBSAMPLED_LOGS.items():
+        log = real_recording(relative)
+        if log.exists():
+            found[name] = (_subsampled(work, log, name), '/scan', 'reference')
     demo = real_recording('leg_tracker/demo_stationary_simple_environment.bag')
     if demo.exists():
         found['leg_demo'] = (demo, '/scan', 'unlabelled')
@@ -197,6 +210,16 @@ def _mit(work: Path, log: Path) -> Path:
     out = work / 'mit_csail'
     if not out.exists():
         convert(log, out)
+    return out
+
+
+def _subsampled(work: Path, log: Path, name: str) -> Path:
+    """A subsampled corrected log imported (once) at ``SUBSAMPLED_PERIOD``."""
+    from laser_tracker.tools.import_carmen import convert
+
+    out = work / name
+    if not out.exists():
+        convert(log, out, odometry_noise_model='realistic', scan_period=SUBSAMPLED_PERIOD)
     return out
 
 

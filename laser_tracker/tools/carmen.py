@@ -135,16 +135,18 @@ class CarmenLog:
         out[self.no_return()] = np.inf
         return out
 
-    def scan(self, i: int, frame_id: str = 'laser', ranges: np.ndarray | None = None) -> Scan:
-        """Laser line ``i`` as a :class:`Scan` (no-return readings as +inf)."""
+    def scan(self, i: int, frame_id: str = 'laser', ranges: np.ndarray | None = None,
+             stamp: float | None = None) -> Scan:
+        """Laser line ``i`` as a :class:`Scan` (no-return readings as +inf), stamped with its
+        line's time stamp unless ``stamp`` is given."""
         if ranges is None:
             r = self.ranges[i].copy()
             with np.errstate(invalid='ignore'):
                 r[r >= self.range_max - NO_RETURN_TOLERANCE] = np.inf
         else:
             r = ranges[i]
-        return Scan(stamp=float(self.stamps[i]), ranges=r, angle_min=self.angle_min,
-                    angle_increment=self.angle_increment, range_min=0.0,
+        return Scan(stamp=float(self.stamps[i] if stamp is None else stamp), ranges=r,
+                    angle_min=self.angle_min, angle_increment=self.angle_increment, range_min=0.0,
                     range_max=self.range_max, frame_id=frame_id)
 
     def scans(self, frame_id: str = 'laser') -> Iterator[Scan]:

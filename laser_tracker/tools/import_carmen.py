@@ -23,6 +23,10 @@ the robot's in these logs).
   ODOM lines are not written. The scanner sits at the platform origin (mount 0), so the
   ego-motion needs no mounting parameters for it.
 * Messages are written in time order (laser lines that go back in time in the log are sorted).
+  ``--scan-period S`` stamps the scans ``S`` seconds apart in the log's order instead, from
+  its first stamp: for a subsampled log (Radish's intel and aces keep every few seconds of
+  the drive, and their stamps go back in places), replayed as a scanner of ``1 / S`` Hz.
+  Its odometry must then come with the scans (a corrected log, or a raw log's FLASER poses).
 * The output appears only when complete (io.bag.BagWriter): a malformed or truncated log
   gives one error naming the file and line, exit status 2, and no output folder.
 """
@@ -30,13 +34,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
 
 from laser_tracker.conversions import (PlanarOdometry, PlanarTransform, odometry_to_msg,
                                        scan_to_msg, transforms_to_msg)
-from laser_tracker.errors import InputFileError
+from laser_tracker.errors import InputFileError, LaserTrackerError
 from laser_tracker.tools import odometry_noise
 from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.bag import (FACTORY, LATCHED_QOS, ODOM_TOPIC, PLATFORM_TRUTH_TOPIC,
@@ -68,6 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f'(default {DEFAULT_NOISE})')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of the odometry noise (default 0)')
+    parser.add_argument('--scan-period', type=float, default=None, metavar='S',
+                        help='stamp the scans S seconds apart in the log\'s order (a '
+                             'subsampled log; default: the log\'s own stamps)')
 
 
 def is_corrected(carmen, log_path) -> bool:
@@ -78,16 +86,26 @@ def is_corrected(carmen, log_path) -> bool:
 
 def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
             frame_id='laser', strict=False, corrected='auto', odometry_noise_model=None,
-            seed=0) -> dict:
+            seed=0, scan_period=None) -> dict:
     """Convert; returns counts ``{'scans': N, 'odometry': M, 'odometry_source': ...}``."""
     check_output(out, overwrite)
+    if scan_period is not None and not (math.isfinite(scan_period) and scan_period > 0):
+        raise LaserTrackerError(f'--scan-period must be a positive number of seconds, not '
+                                f'{scan_period}')
     carmen = read_carmen(log_path, max_reading=max_reading, strict=strict)
     reference = corrected == 'yes' or (corrected == 'auto' and is_corrected(carmen, log_path))
     if odometry_noise_model is not None and not reference:
         raise InputFileError(log_path, '--odometry-noise is for corrected logs (this one '
                              'carries raw odometry; use --corrected yes if it is corrected)')
-    s_order = np.argsort(carmen.stamps, kind='stable')
-    stamps = carmen.stamps[s_order]
+    if scan_period is None:
+        s_order = np.argsort(carmen.stamps, kind='stable')
+        stamps = carmen.stamps[s_order]
+    else:
+        if not reference and carmen.odom_stamps.size:
+            raise InputFileError(log_path, '--scan-period needs the odometry in the laser lines '
+                                 '(this log has ODOM lines of their own time stamps)')
+        s_order = np.arange(len(carmen))
+        stamps = (carmen.stamps[0] if len(carmen) else 0.0) + scan_period * s_order
     truth = None
     if reference:
         noise = odometry_noise_model or DEFAULT_NOISE
@@ -98,6 +116,8 @@ def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
         source = f'the corrected poses with {noise} noise (seed {seed})'
     else:
         o_stamps, o_poses, o_vel, kind = carmen.odometry()
+        if scan_period is not None:
+            o_stamps = stamps
         source = f'{kind} lines'
     ranges = carmen.scan_ranges()
     # Merge the streams by time so the bag's receive times are monotonic.
@@ -112,7 +132,7 @@ def convert(log_path, out, max_reading=None, storage='sqlite3', overwrite=False,
                   events[0][0] if events else 0.0, qos=LATCHED_QOS)
         for stamp, what, idx in events:
             if what == 0:
-                scan = carmen.scan(idx, frame_id=frame_id, ranges=ranges)
+                scan = carmen.scan(idx, frame_id=frame_id, ranges=ranges, stamp=stamp)
                 bag.write(SCAN_TOPIC, scan_to_msg(FACTORY, scan), stamp)
             elif what == 1:
                 x, y, th = o_poses[idx]
@@ -136,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     counts = convert(args.log, args.out, max_reading=args.max_reading, storage=args.storage,
                      overwrite=args.overwrite, frame_id=args.frame, strict=args.strict,
                      corrected=args.corrected, odometry_noise_model=args.odometry_noise,
-                     seed=args.seed)
+                     seed=args.seed, scan_period=args.scan_period)
     print(f'{args.out}: {counts["scans"]} scans ({counts["beams"]} beams, no return = '
           f'{counts["range_max"]:g} m written as inf) on {SCAN_TOPIC}, {counts["odometry"]} '
           f'odometry messages from {counts["odometry_source"]} on {ODOM_TOPIC}'
