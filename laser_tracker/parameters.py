@@ -122,6 +122,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.person_confirm_pairs': 0,
         'hypotheses.person_confirm_time': 0.0,
         'hypotheses.resume_time': 0.0,     # a lost track's id is never resumed
+        'hypotheses.resume_confirms': False,  # nor taken over by a new hypothesis
         'hypotheses.duplicate_radius': 0.0,  # every hypothesis confirms after 4 samples
         'hypotheses.confirm_min_travel': 0.0,
         'hypotheses.confirm_when_measured': False,  # confirmed on the m-th sample, as it comes

@@ -750,3 +750,76 @@ def test_a_patch_riding_with_the_scanner_on_lone_legs_is_not_confirmed():
     lone = run(np.nan)
     assert len(lone) and lone.person_samples.max() >= 2 and not lone.confirmed.any()
     assert run(0.3).confirmed.any()
+
+
+@pytest.mark.parametrize('takes_over', [False, True])
+def test_a_person_whose_track_was_lost_for_a_moment_is_taken_over_where_they_stand(
+        takes_over):
+    """A person who walked in is confirmed, then missed for 0.8 s (the track fades and is
+    removed), then detected again where they stand: where the scans had seen them, so no
+    longer walking in. Only resume_confirms lets the new hypothesis continue the lost track
+    (with its id); without it they wait to walk again."""
+    cfg = HypothesisConfig(resume_confirms=takes_over, gait_spread=0.0,
+                           person_confirm_samples=0, person_confirm_pairs=0)
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    for k in range(8):
+        r = tr.update(people(k * DT, (2.0, 1.0)))
+    (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
+    for k in range(8, 12):
+        r = tr.update(people(k * DT))
+    assert tid not in r.hypotheses.track_id.tolist()          # lost
+    for k in range(12, 20):
+        r = tr.update(people(k * DT, (2.0 + 0.01 * (k % 2), 1.0), free=False))
+    h = r.hypotheses
+    assert len(h) == 1
+    assert bool(h.confirmed[0]) is takes_over
+    if takes_over:
+        assert h.track_id[0] == tid
+
+
+def test_a_lost_track_is_not_taken_over_far_away_late_or_by_another_kind():
+    """The take-over holds within resume_radius of the lost track's way and within
+    resume_time; a person does not take over an object's track."""
+    def run(place, wait, person_track=True):
+        cfg = HypothesisConfig(resume_confirms=True, gait_spread=0.0,
+                               person_confirm_samples=0, person_confirm_pairs=0)
+        tr = HypothesisTracker(cfg, KalmanConfig())
+        for k in range(8):
+            t = k * DT
+            r = tr.update(people(t, (2.0, 1.0)) if person_track
+                          else frame(t, (1.0 + 0.5 * t, 1.0)))
+        assert r.hypotheses.confirmed.any()
+        k = 8
+        while k < 8 + wait:
+            r = tr.update(people(k * DT))
+            k += 1
+        for k in range(k, k + 8):
+            r = tr.update(people(k * DT, place, free=False))
+        return bool(r.hypotheses.confirmed.any())
+    assert run((2.0, 1.0), 4)
+    assert not run((2.0, 2.5), 4)                  # 1.5 m from where it was last seen
+    assert not run((2.0, 1.0), 14)                 # 2.8 s later
+    assert not run((2.0, 1.0), 4, person_track=False)   # the lost track was an object
+
+
+def test_a_target_that_stopped_while_lost_resumes_its_id_where_it_was_last_measured():
+    """Walking at 1 m/s, hidden while it stops: its track coasts on and is removed more than
+    a metre ahead, but the way a lost track is searched along starts where it was last
+    measured, so the target that walks off sideways from where it stood takes its id."""
+    cfg = HypothesisConfig(resume_time=3.0, resume_radius=0.5, coast_rate=60.0)
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    for k in range(8):
+        r = tr.update(frame(k * DT, (1.0 + k * DT, 0.0)))
+    (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
+    last = 1.0 + 7 * DT
+    k = 8
+    while tid in tr.hyp.track_id.tolist():
+        gone = tr.hyp.position[tr.hyp.track_id == tid][0]
+        tr.update(frame(k * DT))
+        k += 1
+    assert gone[0] - last > 2 * cfg.resume_radius      # removed far ahead
+    ids = set()
+    for j in range(k, k + 12):
+        r = tr.update(frame(j * DT, (last, 0.5 * (j - k) * DT)))
+        ids |= set(r.hypotheses.track_id[r.hypotheses.confirmed].tolist())
+    assert ids == {tid}

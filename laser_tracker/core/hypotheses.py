@@ -282,12 +282,18 @@ class HypothesisConfig:
     resume_time: float = param(
         2.0, 'A hypothesis confirmed within this time (s) of the loss of a confirmed track of '
         'the same kind, within resume_radius of that track\'s way since (from where it was '
-        'last seen, on along its last velocity: it walked on or stopped), takes its id: a '
+        'last measured, on along its velocity then: it walked on or stopped), takes its id: a '
         'target lost for a moment (missed, hidden) keeps its identity. 0 = off.',
         min=0.0, max=60.0)
     resume_radius: float = param(
         1.0, 'Largest distance (m) between a lost track\'s way since it was lost and a '
         'newly confirmed hypothesis that resumes it (resume_time).', min=0.0, max=10.0)
+    resume_confirms: bool = param(
+        True, 'A person\'s hypothesis measured now within resume_radius of the way of a '
+        'confirmed person\'s track lost within resume_time (from where that track was last '
+        'measured, on along its velocity then) takes it over: the rules that ask for '
+        'evidence of a walking person (person_min_travel, ride_along_speed) do not hold it '
+        'back. A person whose track slipped off them for a scan is not a new person.')
     duplicate_radius: float = param(
         0.3, 'A hypothesis within this distance (m) of a confirmed track is not confirmed: '
         'it duplicates that track (the two follow the same legs) and merges into it, so '
@@ -379,7 +385,7 @@ class HypothesisTracker:
             hyp, removed, bounded = self.deletion.delete(hyp, t)
             if removed is not None:
                 self.identity.remember_lost(removed, t)
-            newly = self.confirmation.confirm(hyp, frame)
+            newly = self.confirmation.confirm(hyp, frame, self.identity.continuing(hyp, t))
             self.identity.resume(hyp, newly, t)
             self.seen_empty = (t, self.visibility.seen_empty(hyp, frame))
         self.hyp = hyp

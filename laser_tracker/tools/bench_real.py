@@ -46,10 +46,10 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
   drives through a real building, scored as the leg scenes, pooled over the six;
   ``leg_scenes_driving_inf_odometry``: the same scenes with wheel odometry and the mount on
   /tf (as ``negative_2_inf_odometry``; three draws, pooled).
-* ``..._reversed``: Freiburg (both noise models, four draws each), MIT, ``negative_2_inf``
-  and the people of the leg and driving scenes played backwards (``tools.reverse``): the
-  robot drives in reverse with its scanners looking where it came from, people walk the
-  other way; what of the defaults depends on the direction of time.
+* ``..._reversed``: ``person_following``, Freiburg (both noise models, four draws each), MIT,
+  ``negative_2_inf`` and the people of the leg and driving scenes played backwards
+  (``tools.reverse``): the robot drives in reverse with its scanners looking where it came
+  from, people walk the other way; what of the defaults depends on the direction of time.
 
 What is not present is reported as missing, never failed. It takes a few minutes
 (``--jobs 2`` on a free 2-core machine halves it).
@@ -96,7 +96,8 @@ SUBSAMPLED_LOGS = {'intel': 'carmen/intel-corrected.log.gz',
                    'aces': 'carmen/aces-corrected.log.gz'}
 SUBSAMPLED_PERIOD = 1.0
 #: Recordings also replayed backwards (``tools.reverse``): ``<name>_reversed``.
-REVERSED = ('freiburg', 'mit_csail', 'negative_2_inf', 'leg_scenes_inf', 'leg_scenes_driving_inf')
+REVERSED = ('person_following', 'freiburg', 'mit_csail', 'negative_2_inf', 'leg_scenes_inf',
+            'leg_scenes_driving_inf')
 RECORDINGS += tuple(f'{base}_reversed' for base in REVERSED)
 #: ``negative_2_inf_odometry``: where each scanner is taken to sit on the base (x, y, yaw),
 #: as on a robot with two front corner scanners turned outwards and one facing back, and the
@@ -341,7 +342,8 @@ def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
 
 def _reversed(work: Path, names, with_detector: bool) -> dict:
     """name -> [(bag, scan topic, scoring, extras)] for the ``_reversed`` rows asked for:
-    each recording played backwards (``tools.reverse``), written once: Freiburg with both
+    each recording played backwards (``tools.reverse``), written once: the followed person
+    of ``person_following`` (its annotations after their scan), Freiburg with both
     noise models and the draws of ``freiburg_other_noise`` too (eight replays), MIT, the
     three scanners of ``negative_2_inf``, and the people of the leg-labelled scenes and of
     the driving scenes, each scene's annotations after their scan."""
@@ -357,6 +359,11 @@ def _reversed(work: Path, names, with_detector: bool) -> dict:
 
     wanted = {f'{base}_reversed' for base in REVERSED} & set(names)
     found: dict = {}
+    register_person_type(TYPESTORE)
+    pf = real_recording('leg_tracker/person_following_outdoor_1.bag')
+    if 'person_following_reversed' in wanted and pf.exists():
+        found['person_following_reversed'] = [
+            (backwards(pf, (ANNOTATION_TOPIC,)), '/scan_base2', 'annotated', None)]
     log = real_recording('carmen/freiburg-079-part1-corrected.log.gz')
     if 'freiburg_reversed' in wanted and log.exists():
         found['freiburg_reversed'] = [
@@ -369,7 +376,6 @@ def _reversed(work: Path, names, with_detector: bool) -> dict:
     if 'negative_2_inf_reversed' in wanted and negative.exists():
         bag = backwards(_negative_inf(work, negative))
         found['negative_2_inf_reversed'] = [(bag, t, 'negative', None) for t in NEGATIVE_TOPICS]
-    register_person_type(TYPESTORE)
     scenes = _leg_scenes(work, ['leg_scenes_inf'] * ('leg_scenes_inf_reversed' in wanted),
                          with_detector)
     scenes.update(_driving_scenes(

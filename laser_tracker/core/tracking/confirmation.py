@@ -129,13 +129,20 @@ RULES = ((measured, 'confirm_when_measured'), (walked, 'person_min_travel'),
          (old_enough, 'confirm_time'), (fast_enough, 'confirm_min_speed'),
          (travelled, 'confirm_min_travel'), (not_a_duplicate, 'duplicate_radius'))
 
+#: The rules that ask for evidence that a person walks (not clutter standing, not part of the
+#: robot): a hypothesis that takes over a lost confirmed track has given it already.
+WALKING_EVIDENCE = (walked, not_riding_along)
+
 
 class Confirmation(Role):
     """The paper's rule and the further rules (see the module docstring)."""
 
-    def confirm(self, hyp: Hypotheses, frame: Frame) -> np.ndarray:
+    def confirm(self, hyp: Hypotheses, frame: Frame,
+                continuing: np.ndarray | None = None) -> np.ndarray:
         """Confirms the hypotheses every applying rule allows; returns the indices of those
-        confirmed now."""
+        confirmed now. ``continuing`` (mask over ``hyp``): hypotheses that take over a lost
+        confirmed track (``identity``), which the rules of :data:`WALKING_EVIDENCE` let
+        through."""
         c = self.config
         # The candidates: not confirmed yet, with the paper's m samples.
         rows = (~hyp.confirmed & (hyp.samples >= c.confirm_samples)).nonzero()[0]
@@ -144,6 +151,8 @@ class Confirmation(Role):
             for rule, switch in RULES:
                 if getattr(c, switch) > 0:
                     allowed = rule(c, candidates, confirmed, frame)
+                    if continuing is not None and rule in WALKING_EVIDENCE:
+                        allowed |= continuing[rows]
                     if not allowed.all():
                         rows = rows[allowed]
                         if not rows.size:

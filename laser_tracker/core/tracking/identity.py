@@ -11,10 +11,17 @@
   person whose leg hypotheses split and merge again keeps one id.
 * **Resume** (``resume_time``, beyond the paper): a hypothesis confirmed within
   ``resume_time`` of the loss of a confirmed track of the same kind, within
-  ``resume_radius`` of that track's way since (from where it was last seen, on along its
-  last velocity for the time since: it walked on or stopped somewhere on the way), takes
-  its id (nearest pairs first, each lost track once): a target lost for a moment keeps its
-  identity.
+  ``resume_radius`` of that track's way since (from where a blob, a person detection or a
+  segment last measured it, on along its velocity then for the time since: it walked on or
+  stopped somewhere on the way), takes its id (nearest pairs first, each lost track once):
+  a target lost for a moment keeps its identity.
+* **Take over** (``resume_confirms``): a person's hypothesis not confirmed yet, measured now,
+  within ``resume_radius`` of the way of a confirmed person's track lost within
+  ``resume_time`` continues it: the confirmation rules that ask for evidence of a walking
+  person (``walked``, ``not_riding_along``) do not hold it back. A person's track pulled off them for a scan
+  (a blob beside their legs while the robot turns) leaves them to a new hypothesis; the
+  evidence that they are a person was already gathered, and a person standing in view
+  would otherwise wait to walk again.
 """
 from __future__ import annotations
 
@@ -25,10 +32,11 @@ from laser_tracker.core.blobs import _root
 from laser_tracker.core.tracking.role import Role
 from laser_tracker.core.tracking.state import MOTION, PERSON, Hypotheses
 
-#: A confirmed track lost recently (``resume_time``): its id, when and where it was lost, its
-#: velocity then, and whether it was a person.
-LOST = np.dtype([('track_id', np.int64), ('stamp', np.float64), ('position', np.float64, (2,)),
-                 ('velocity', np.float64, (2,)), ('person', np.bool_)])
+#: A confirmed track lost recently (``resume_time``): its id, when it was lost, when and where
+#: it was last measured, its velocity then, and whether it was a person.
+LOST = np.dtype([('track_id', np.int64), ('stamp', np.float64), ('t_seen', np.float64),
+                 ('seen', np.float64, (2,)), ('velocity', np.float64, (2,)),
+                 ('person', np.bool_)])
 
 
 class Identity(Role):
@@ -96,7 +104,8 @@ class Identity(Role):
         gone = gone.take(gone.confirmed)
         if len(gone):
             rows = np.zeros(len(gone), LOST)
-            rows['track_id'], rows['stamp'], rows['position'] = gone.track_id, t, gone.position
+            rows['track_id'], rows['stamp'] = gone.track_id, t
+            rows['t_seen'], rows['seen'] = gone.t_state, gone.state[:, :2]
             rows['velocity'] = gone.velocity
             rows['person'] = gone.is_person(c.person_kind_samples)
             lost = np.concatenate((lost, rows))
@@ -113,8 +122,8 @@ class Identity(Role):
             self.lost = lost
             return
         person = hyp.is_person(c.person_kind_samples)[newly]
-        d = _distances_to_ways(hyp.position[newly], lost['position'],
-                               lost['velocity'] * (t - lost['stamp'])[:, None])
+        d = _distances_to_ways(hyp.position[newly], lost['seen'],
+                               lost['velocity'] * (t - lost['t_seen'])[:, None])
         d[person[:, None] != lost['person'][None, :]] = np.inf
         taken = np.zeros(len(lost), bool)
         done = np.zeros(len(newly), bool)
@@ -129,6 +138,24 @@ class Identity(Role):
             ids[newly[i]] = lost['track_id'][j]
             self.stats['resumed'] += 1
         self.lost = lost[~taken]
+
+    def continuing(self, hyp: Hypotheses, t: float) -> np.ndarray | None:
+        """Mask over ``hyp``: the person hypotheses not confirmed yet, measured now, that take
+        over a confirmed person's track lost within ``resume_time`` (module docstring); None
+        when there is none (or ``resume_confirms`` is off)."""
+        c = self.config
+        if not c.resume_confirms or c.resume_time <= 0 or not len(hyp):
+            return None
+        lost = self.lost[(self.lost['stamp'] >= t - c.resume_time) & self.lost['person']]
+        rows = (~hyp.confirmed & hyp.supported
+                & hyp.is_person(c.person_kind_samples)).nonzero()[0]
+        if not len(lost) or not rows.size:
+            return None
+        d = _distances_to_ways(hyp.position[rows], lost['seen'],
+                               lost['velocity'] * (t - lost['t_seen'])[:, None])
+        mask = np.zeros(len(hyp), bool)
+        mask[rows] = (d <= c.resume_radius).any(axis=1)
+        return mask if mask.any() else None
 
 
 def _distances_to_ways(xy: np.ndarray, start: np.ndarray, way: np.ndarray) -> np.ndarray:
