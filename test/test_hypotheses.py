@@ -781,8 +781,9 @@ def test_a_lost_track_is_not_taken_over_far_away_late_or_by_another_kind():
     """The take-over holds within resume_radius of the lost track's way and within
     resume_time; a person does not take over an object's track."""
     def run(place, wait, person_track=True):
-        cfg = HypothesisConfig(resume_confirms=True, gait_spread=0.0,
-                               person_confirm_samples=0, person_confirm_pairs=0)
+        cfg = HypothesisConfig(resume_confirms=True, resume_time=2.0, resume_radius=1.0,
+                               gait_spread=0.0, person_confirm_samples=0,
+                               person_confirm_pairs=0)
         tr = HypothesisTracker(cfg, KalmanConfig())
         for k in range(8):
             t = k * DT

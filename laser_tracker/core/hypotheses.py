@@ -280,7 +280,7 @@ class HypothesisConfig:
         0.15, 'A supporting segment within this distance (m) of the track\'s position means '
         'the object stands: its velocity is measured as zero.', min=0.0, max=2.0)
     resume_time: float = param(
-        2.0, 'A hypothesis confirmed within this time (s) of the loss of a confirmed track of '
+        4.0, 'A hypothesis confirmed within this time (s) of the loss of a confirmed track of '
         'the same kind, within resume_radius of that track\'s way since (from where it was '
         'last measured, on along its velocity then: it walked on or stopped), takes its id: a '
         'target lost for a moment (missed, hidden) keeps its identity. 0 = off.',
