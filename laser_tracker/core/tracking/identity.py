@@ -18,10 +18,11 @@
 * **Take over** (``resume_confirms``): a person's hypothesis not confirmed yet, measured now,
   within ``resume_radius`` of the way of a confirmed person's track lost within
   ``resume_time`` continues it: the confirmation rules that ask for evidence of a walking
-  person (``walked``, ``not_riding_along``) do not hold it back. A person's track pulled off them for a scan
-  (a blob beside their legs while the robot turns) leaves them to a new hypothesis; the
-  evidence that they are a person was already gathered, and a person standing in view
-  would otherwise wait to walk again.
+  person (``walked``, ``not_riding_along``) do not hold it back. A person's track pulled
+  off them for a scan (a blob beside their legs while the robot turns), or faded while the
+  detector missed them, leaves them to a new hypothesis; the evidence that they are a
+  person was already gathered, and a person standing in view would otherwise wait to walk
+  again.
 """
 from __future__ import annotations
 
