@@ -365,3 +365,25 @@ def test_real_annotations_are_placed_and_score_perfectly_when_fed_back():
     assert r['following']['tracked'] == 6179 and r['following']['id_switches'] == 0
     assert r['following']['misses'] == 0 and r['following']['false_positives'] == 0
     assert r['clear_mot']['all']['mota'] == pytest.approx(1.0)
+
+
+def test_a_recording_at_half_the_rate_keeps_each_annotation_with_its_scan(tmp_path):
+    """bench real's other scanners: every second scan of an annotated recording, with the
+    annotations of the scans kept (and none of those left out), each at its own scan; every
+    second beam leaves the annotations as they are."""
+    from laser_tracker.tools.bench_real import rewrite_scans
+    src = tmp_path / 'src'
+    stamps = write_annotated_bag(src, lambda k: [(1, 1.0 + 0.01 * k, 0.0)], n=20)
+    half = tmp_path / 'half'
+    rewrite_scans(src, half, ['/scan_base2'], scan_step=2, as_inf=False,
+                  attached=(ANNOTATION_TOPIC,))
+    ann = read_annotations(half, scan_topic='/scan_base2')
+    np.testing.assert_allclose(ann.scans.stamps, stamps[::2])
+    assert len(ann) == 10 and not ann.counts.get('repeated')
+    np.testing.assert_allclose(ann.x, 1.0 + 0.01 * np.arange(0, 20, 2))   # their own scan's
+    beams = tmp_path / 'beams'
+    rewrite_scans(src, beams, ['/scan_base2'], beam_step=2, as_inf=False,
+                  attached=(ANNOTATION_TOPIC,))
+    ann = read_annotations(beams, scan_topic='/scan_base2')
+    assert len(ann) == 20
+    np.testing.assert_allclose(ann.x, 1.0 + 0.01 * np.arange(20))

@@ -951,3 +951,29 @@ def test_the_rehearsed_first_match_changes_nothing(monkeypatch):
     assert np.array_equal(a.chain, b.chain) and np.array_equal(a.prior.noise, b.prior.noise)
     assert np.array_equal(a.matcher.map.rows, b.matcher.map.rows)
     assert np.array_equal(a.self_mask.state, b.self_mask.state, equal_nan=True)
+
+
+@pytest.mark.parametrize('retry', [False, True])
+def test_a_platform_that_stops_without_odometry_is_found_standing_with_standstill_retry(retry):
+    """No odometry: the platform drives and turns fast, then stops. The match from the
+    constant-velocity guess (a step the platform no longer makes) is refused and the pose
+    coasts on; with standstill_retry the match from standing still is taken instead."""
+    config = EgoMotionConfig(standstill_retry=retry)
+    est = EgoMotionEstimator(config)
+    pose = np.zeros(3)
+    for k in range(6):                 # speeding up to 0.5 m/s and 1 rad/s: each step matched
+        if k:
+            pose = compose(pose, np.array([0.05, 0.0, 0.1]) * k)
+        e = est.update(cast(ROOM, pose, stamp=0.5 * k))
+        assert k == 0 or e.source in (SOURCE_ICP, 'icp_partial')
+    after = [est.update(cast(ROOM, pose, stamp=0.5 * k)) for k in range(6, 9)]    # stopped
+    drift = math.hypot(*(after[-1].pose[:2] - e.pose[:2]))
+    if retry:
+        assert all(a.source in (SOURCE_ICP, 'icp_partial') for a in after)
+        for a in after:
+            t_err, r_err = motion_error(a.motion, np.zeros(3))
+            assert t_err < 0.02 and r_err < 0.02
+        assert drift < 0.02
+    else:
+        assert all(a.source == SOURCE_CONSTANT_VELOCITY and a.coasting for a in after)
+        assert drift > 0.5                               # it drove on, in the estimate

@@ -52,9 +52,11 @@ Method (per scan):
 5. Checks: enough points, overlap (``min_inlier_ratio``), residual (``max_rms``),
    convergence, the platform's speed limits (``max_translation_speed``,
    ``max_rotation_speed``) and the disagreement with odometry (``max_correction_*``).
-   A refused match never restarts the pose chain: the platform coasts on its prediction
-   (source ``odometry`` or ``constant_velocity``, ``coasting`` True; detection gates such a
-   scan, see ``difference.pose_quality``). After ``max_lost_scans`` scans in a row without a
+   Without odometry, a match from the constant-velocity guess that is refused is tried
+   once more from standstill with ``standstill_retry`` (the platform stopped, or its last
+   motion came from a wrong match). A refused match never restarts the pose chain: the
+   platform coasts on its prediction (source ``odometry`` or ``constant_velocity``,
+   ``coasting`` True; detection gates such a scan, see ``difference.pose_quality``). After ``max_lost_scans`` scans in a row without a
    match (or at once when the map is too small to match against, or when the scan comes
    more than ``max_gap`` after the previous one with no odometry across the gap) the local
    map is re-seeded from the current scan at its coasted pose; the pose chain goes on.
@@ -262,6 +264,12 @@ class EgoMotionConfig:
         'after max_lost_scans. The pose chain continues. 0 = off (the default and the paper: '
         'the scans coasted until then are no detection\'s, see README.md, "Ego-motion").',
         min=0.0, max=3600.0)
+    standstill_retry: bool = param(
+        False, 'Without odometry, when the match from the constant-velocity guess is refused, '
+        'match again from the platform standing still and take that match if it passes: a '
+        'platform that stopped, or whose last motion came from a wrong match, is found again '
+        'instead of coasting on a motion it no longer has (every later match starting from '
+        'it). See README.md, "Real recordings", played backwards.')
     speed_check_jitter: float = param(
         0.05, 'The platform speed checks allow the motion of the time step plus this (s): '
         'scan stamps jitter.', min=0.0, max=10.0)
@@ -756,13 +764,13 @@ _HAS_POSE, _POSE, _STAMP, _HAS_MOTION, _MOTION, _DT, _HAS_ODO, _ODO, _SEGMENT, _
 #: match's checks (:attr:`ScanMatcher.checks`), and 2.0 (the pow exponent).
 _S = _layout(('min_points', 1), ('max_points', 1), ('min_range', 1), ('max_range', 1),
              ('speed', 1), ('turn', 1), ('jitter', 1), ('correction_t', 1),
-             ('correction_r', 1), ('max_lost', 1), ('max_gap', 1), ('key_t', 1),
-             ('key_r', 1),
+             ('correction_r', 1), ('max_lost', 1), ('max_gap', 1), ('standstill', 1),
+             ('key_t', 1), ('key_r', 1),
              ('normal_gap', 1), ('mounted', 1), ('mount', 3), ('two', 1), ('adaptive', 1),
              ('unknown', 3), ('fixed', 12), ('noise', 3), ('checks', 9))
 _S_MIN_POINTS, _S_MAX_POINTS, _S_MIN_RANGE, _S_MAX_RANGE, _S_SPEED, _S_TURN, _S_JITTER, \
-    _S_CORRECTION_T, _S_CORRECTION_R, _S_MAX_LOST, _S_MAX_GAP, _S_KEY_T, _S_KEY_R, \
-    _S_NORMAL_GAP, \
+    _S_CORRECTION_T, _S_CORRECTION_R, _S_MAX_LOST, _S_MAX_GAP, _S_STANDSTILL, _S_KEY_T, \
+    _S_KEY_R, _S_NORMAL_GAP, \
     _S_MOUNTED, _S_MOUNT, _S_TWO, _S_ADAPTIVE, _S_UNKNOWN, _S_FIXED, _S_NOISE, _S_CHECKS, \
     _SETTINGS = _S.values()
 
@@ -856,6 +864,34 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
         fused_pose, motion, info_icp, _, cov = _fused(packed, n_deg, pose, predicted, checks)
         _implausible(motion, predicted, fused_pose, has_inc, dt, settings, out)
     accepted = verdict == FUSED and out[_O_WHY] == _WHY_NONE
+    if not accepted and not has_inc and settings[_S_STANDSTILL] > 0.0 and n_map > 0 \
+            and (cv[0] != 0.0 or cv[1] != 0.0 or cv[2] != 0.0):
+        # the constant-velocity guess failed: try the platform standing still
+        info_z = _information(_MOTION_MODEL, np.zeros(3), settings, noise)
+        pts_z, packed_z = _match_and_fuse(
+            ranges, skip, cos, sin, valid_min, valid_max, settings[_S_MIN_RANGE],
+            settings[_S_MAX_RANGE], int(settings[_S_MAX_POINTS]),
+            int(settings[_S_MIN_POINTS]), pose, schedule, icp_settings, rows[:n_map],
+            grid_xy[:n_map], order[:n_map], start, grid, pose, info_z, checks)
+        if int(packed_z[_VERDICT]) == FUSED:
+            n_deg_z = int(packed_z[_N_DEG])
+            fused_z, motion_z, info_icp_z, _, cov_z = _fused(packed_z, n_deg_z, pose, pose,
+                                                              checks)
+            why = out[_O_WHY:_O_WHY + 3].copy()
+            out[_O_WHY:_O_WHY + 3] = 0.0
+            _implausible(motion_z, pose, fused_z, has_inc, dt, settings, out)
+            if out[_O_WHY] == _WHY_NONE:
+                accepted = True
+                pts, packed, verdict, n_deg = pts_z, packed_z, FUSED, n_deg_z
+                fused_pose, motion, info_icp, cov = fused_z, motion_z, info_icp_z, cov_z
+                motion_p, info, predicted = np.zeros(3), info_z, pose.copy()
+                out[_O_N_POINTS], out[_O_MATCHED] = pts.shape[0], 1.0
+                out[_O_INLIER_RATIO] = packed[icp._N_IN] / pts.shape[0] if pts.shape[0] else 0.0
+                out[_O_RMS] = packed[icp._RMS]
+                out[_O_ITERATIONS] = packed[icp._ITERATIONS]
+                out[_O_MIN_EIG] = packed[icp.EIGENVALUES]
+            else:
+                out[_O_WHY:_O_WHY + 3] = why
     lost = chain[_LOST]
     reseed = False
     if accepted:
@@ -1343,7 +1379,8 @@ def _settings(config: EgoMotionConfig, prior: MotionPrior, matcher: ScanMatcher)
     out = np.array([c.min_points, c.max_points, c.min_range, c.max_range,
                     c.max_translation_speed, c.max_rotation_speed, c.speed_check_jitter,
                     c.max_correction_translation, c.max_correction_rotation,
-                    c.max_lost_scans, c.max_gap, c.map_min_translation, c.map_min_rotation,
+                    c.max_lost_scans, c.max_gap, float(c.standstill_retry),
+                    c.map_min_translation, c.map_min_rotation,
                     c.normal_max_gap, float(any(mount)), *mount, 2.0, *prior.settings(),
                     *matcher.checks], dtype=float)
     assert out.size == _SETTINGS

@@ -34,8 +34,9 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
 * ``negative_2_inf_half_beams`` / ``_half_rate`` and ``leg_scenes_inf_half_beams`` /
   ``_half_rate``: the same (no-return readings as +inf) as two other scanners would have
   recorded them, every second beam (0.7 deg apart) or every second scan (3.75 Hz); the three
-  scanners of ``negative_2`` in one row. What a default that counts beams or scans depends
-  on;
+  scanners of ``negative_2`` in one row; ``person_following_half_beams`` / ``_half_rate``
+  likewise (0.7 deg, 5 Hz), each annotation kept with its scan. What a default that counts
+  beams or scans depends on;
 * ``negative_2_inf_odometry``: the same three scanners (no-return readings as +inf) with
   wheel odometry on /tf and the scanner's mount on /tf_static, as a robot with odometry
   records them (the odometry: the scanner poses of a replay on scan matching alone, moved to
@@ -81,12 +82,14 @@ RECORDINGS = ('person_following', 'freiburg_realistic', 'freiburg_poor',
               'freiburg_other_noise', 'mit_csail', 'intel', 'aces', 'leg_demo') + tuple(
     f'negative_2_{s}{e}' for e in ('', '_inf') for s in NEGATIVE_SCANNERS) + tuple(
     f'negative_2_{s}_unseen' for s in NEGATIVE_SCANNERS) + ('leg_scenes', 'leg_scenes_inf')
-#: Other scanners made of the recordings of one (its no-return readings as +inf): name, keep
-#: every so many beams, keep every so many scans. The leg_tracker robot's scanners (768 beams
-#: over 270 deg at 7.5 Hz) as one with half the beams (0.7 deg apart) and one at half the
-#: rate (3.75 Hz): what a default that counts scans or beams depends on.
+#: Other scanners made of the recordings of one: name, keep every so many beams, keep every
+#: so many scans. The leg_tracker robot's scanners (768 beams over 270 deg at 7.5 Hz; their
+#: no-return readings as +inf) as one with half the beams (0.7 deg apart) and one at half
+#: the rate (3.75 Hz), and the person-following robot's (245 beams 0.35 deg apart, 10 Hz)
+#: at 0.7 deg and 5 Hz: what a default that counts scans or beams depends on.
 OTHER_SCANNERS = (('half_beams', 2, 1), ('half_rate', 1, 2))
-RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf')
+RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_inf',
+                                                 'person_following')
                     for name, _, _ in OTHER_SCANNERS) + (
     'negative_2_inf_odometry', 'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry')
 #: The subsampled corrected logs (Radish's intel and aces keep a scan every 0.6 to 1 m of the
@@ -146,21 +149,31 @@ def mode_parameters(mode: str, files=(), overrides=None):
 
 
 def rewrite_scans(src: Path, dst: Path, scan_topics, beam_step: int = 1,
-                  scan_step: int = 1) -> None:
+                  scan_step: int = 1, as_inf: bool = True, attached=()) -> None:
     """A rosbag2 copy of ``scan_topics`` of ``src`` whose no-return readings (0 and codes below
-    ``range_min``; -inf stays) read +inf, as a driver following REP 117 writes them; with
-    ``beam_step`` / ``scan_step``, only every so many beams of every so many scans of each
-    topic: the recording as a scanner with fewer beams or a lower rate would have made it."""
+    ``range_min``; -inf stays) read +inf, as a driver following REP 117 writes them (unless
+    ``as_inf`` is false); with ``beam_step`` / ``scan_step``, only every so many beams of
+    every so many scans of each topic: the recording as a scanner with fewer beams or a lower
+    rate would have made it. The messages of ``attached`` topics (annotations, which belong
+    to the scan before them) are copied after the scans kept, not after those left out."""
     from laser_tracker.conversions import scan_from_msg, scan_to_msg
     from laser_tracker.tools.bag import FACTORY, BagWriter, iter_messages
 
     seen: dict[str, int] = {}
+    kept = False
     with BagWriter(dst) as bag:
-        for topic, t_ns, msg in iter_messages(src, scan_topics):
-            seen[topic] = seen.get(topic, -1) + 1
-            if seen[topic] % scan_step:
+        for topic, t_ns, msg in iter_messages(src, [*scan_topics, *attached]):
+            if topic in attached:
+                if kept:
+                    bag.write(topic, msg, int(t_ns))
                 continue
-            scan = scan_from_msg(msg).with_no_returns_as_inf()
+            seen[topic] = seen.get(topic, -1) + 1
+            kept = not seen[topic] % scan_step
+            if not kept:
+                continue
+            scan = scan_from_msg(msg)
+            if as_inf:
+                scan = scan.with_no_returns_as_inf()
             if beam_step > 1:
                 scan = scan.every_nth_beam(beam_step)
             bag.write(topic, scan_to_msg(FACTORY, scan), int(t_ns))
@@ -388,17 +401,32 @@ def _reversed(work: Path, names, with_detector: bool) -> dict:
 
 
 def _other_scanners(work: Path, names) -> dict:
-    """name -> [(bag, scan topic)] for the ``negative_2_inf`` rows of the ``OTHER_SCANNERS``
-    asked for: the three scanners, pooled in one row."""
+    """name -> [(bag, scan topic, scoring)] for the ``negative_2_inf`` and
+    ``person_following`` rows of the ``OTHER_SCANNERS`` asked for: the three scanners of
+    ``negative_2``, pooled in one row; the followed person's annotations after the scans
+    kept."""
+    from laser_tracker.tools.annotations import ANNOTATION_TOPIC, register_person_type
+    from laser_tracker.tools.bag import TYPESTORE
+
     negative = real_recording('leg_tracker/training/negative_2.bag')
+    following = real_recording('leg_tracker/person_following_outdoor_1.bag')
     found = {}
+    for v, beam_step, scan_step in OTHER_SCANNERS:
+        name = f'person_following_{v}'
+        if name in names and following.exists():
+            register_person_type(TYPESTORE)
+            bag = work / name
+            if not bag.exists():
+                rewrite_scans(following, bag, ['/scan_base2'], beam_step, scan_step,
+                              as_inf=False, attached=(ANNOTATION_TOPIC,))
+            found[name] = [(bag, '/scan_base2', 'annotated')]
     for v, beam_step, scan_step in OTHER_SCANNERS:
         name = f'negative_2_inf_{v}'
         if name in names and negative.exists():
             bag = work / name
             if not bag.exists():
                 rewrite_scans(negative, bag, NEGATIVE_TOPICS, beam_step, scan_step)
-            found[name] = [(bag, t) for t in NEGATIVE_TOPICS]
+            found[name] = [(bag, t, 'negative') for t in NEGATIVE_TOPICS]
     return found
 
 
@@ -595,7 +623,7 @@ def run(args: argparse.Namespace) -> int:
                       for n, parts in scenes.items()})
         found.update({n: [(bag, topic, 'negative', extra)]
                       for n, (bag, topic, extra) in _unseen_negatives(names, detector).items()})
-        found.update({n: [(bag, topic, 'negative', None) for bag, topic in parts]
+        found.update({n: [(bag, topic, scoring, None) for bag, topic, scoring in parts]
                       for n, parts in _other_scanners(work, names).items()})
         found.update({n: [(bag, topic, 'negative', None) for bag, topic in parts]
                       for n, parts in _with_odometry(work, names).items()})
