@@ -56,10 +56,11 @@ Method (per scan):
    once more from standstill with ``standstill_retry`` (the platform stopped, or its last
    motion came from a wrong match). A refused match never restarts the pose chain: the
    platform coasts on its prediction (source ``odometry`` or ``constant_velocity``,
-   ``coasting`` True; detection gates such a scan, see ``difference.pose_quality``). After ``max_lost_scans`` scans in a row without a
-   match (or at once when the map is too small to match against, or when the scan comes
-   more than ``max_gap`` after the previous one with no odometry across the gap) the local
-   map is re-seeded from the current scan at its coasted pose; the pose chain goes on.
+   ``coasting`` True; detection gates such a scan, see ``difference.pose_quality``). After
+   ``max_lost_scans`` scans in a row without a match (or at once when the map is too small
+   to match against, or when the scan comes more than ``max_gap`` after the previous one
+   with no odometry across the gap) the local map is re-seeded from the current scan at its
+   coasted pose; the pose chain goes on.
 
 Sources: ``init`` (first scan or an explicit reset: pose = odometry pose or the origin,
 motion 0), ``icp``, ``icp_partial`` (ICP with the prediction along the degenerate
@@ -846,11 +847,7 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
     matched = verdict != UNMATCHED
     out[_O_N_POINTS], out[_O_MATCHED], out[_O_MAP_POINTS] = n_pts, matched, n_map
     if matched:
-        n_in = packed[icp._N_IN]
-        out[_O_INLIER_RATIO] = n_in / n_pts if n_pts else 0.0
-        out[_O_RMS] = packed[icp._RMS]
-        out[_O_ITERATIONS] = packed[icp._ITERATIONS]
-        out[_O_MIN_EIG] = packed[icp.EIGENVALUES]
+        _match_figures(out, n_pts, packed)
     # 5. the fused motion's checks
     motion, fused_pose, cov = np.full(3, np.nan), np.full(3, np.nan), np.full((3, 3), np.nan)
     info_icp = np.full((3, 3), np.nan)
@@ -880,16 +877,12 @@ def _scan_step(t, ranges, cos, sin, valid_min, valid_max, increment, odo_has, ox
             why = out[_O_WHY:_O_WHY + 3].copy()
             out[_O_WHY:_O_WHY + 3] = 0.0
             _implausible(motion_z, pose, fused_z, has_inc, dt, settings, out)
-            if out[_O_WHY] == _WHY_NONE:
+            if out[_O_WHY] == _WHY_NONE:       # the same points, matched from standstill
                 accepted = True
-                pts, packed, verdict, n_deg = pts_z, packed_z, FUSED, n_deg_z
+                pts, packed, n_deg = pts_z, packed_z, n_deg_z
                 fused_pose, motion, info_icp, cov = fused_z, motion_z, info_icp_z, cov_z
-                motion_p, info, predicted = np.zeros(3), info_z, pose.copy()
-                out[_O_N_POINTS], out[_O_MATCHED] = pts.shape[0], 1.0
-                out[_O_INLIER_RATIO] = packed[icp._N_IN] / pts.shape[0] if pts.shape[0] else 0.0
-                out[_O_RMS] = packed[icp._RMS]
-                out[_O_ITERATIONS] = packed[icp._ITERATIONS]
-                out[_O_MIN_EIG] = packed[icp.EIGENVALUES]
+                out[_O_MATCHED] = 1.0
+                _match_figures(out, n_pts, packed)
             else:
                 out[_O_WHY:_O_WHY + 3] = why
     lost = chain[_LOST]
@@ -1063,6 +1056,15 @@ def _odometry_increment(odo_has, odo, oseg, dt, chain, settings, out):
         if kind:
             out[_O_INC], out[_O_INC + 1], out[_O_INC + 2] = _INC_TOO_FAST, kind, speed
     return inc
+
+
+@jit.inline
+def _match_figures(out, n_pts, packed):
+    """The match's inlier ratio, residual, iterations and weakest eigenvalue into ``out``."""
+    out[_O_INLIER_RATIO] = packed[icp._N_IN] / n_pts if n_pts else 0.0
+    out[_O_RMS] = packed[icp._RMS]
+    out[_O_ITERATIONS] = packed[icp._ITERATIONS]
+    out[_O_MIN_EIG] = packed[icp.EIGENVALUES]
 
 
 @jit.inline
