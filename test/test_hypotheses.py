@@ -11,6 +11,7 @@ import pytest
 from laser_tracker.core.detections import Blobs, Detections, People, Segments, View
 from laser_tracker.core.hypotheses import HypothesisConfig, HypothesisTracker
 from laser_tracker.core.kalman import KalmanConfig
+from laser_tracker.core.tracking.state import MOTION
 
 DT = 0.2
 
@@ -459,6 +460,29 @@ def test_a_blob_that_moves_less_than_the_view_changes_is_not_confirmed_while_dri
     assert run(0.0, away=1.2).confirmed.all()
     assert run(0.6, drive=0.0).confirmed.all()
     assert run(0.6, ratio=0.0).confirmed.all()
+
+
+@pytest.mark.parametrize('pairs, spread, confirmed', [
+    (8, 0.25, True), (8, np.nan, False), (0, 0.25, False)])
+def test_a_person_standing_where_the_robot_drives_by_is_confirmed_by_both_legs_seen(
+        pairs, spread, confirmed):
+    """The scanner drives at 1.5 m/s; a blob creeps 2 m to its side (the hypothesis starts
+    by motion), then legs stand there, both seen off static background: not moved more than
+    the view changes, but confirmed after ``person_confirm_pairs`` detections of two legs
+    as a hypothesis a person detection started would be; a lone leg (a post) is not."""
+    tr = HypothesisTracker(HypothesisConfig(person_confirm_pairs=pairs), KalmanConfig())
+    for k in range(14):
+        t = k * DT
+        if k < 2:
+            d = frame(t, (1.0 + 0.6 * t, 2.0))
+        else:
+            d = people(t, (1.0 + 0.6 * DT, 2.0), free=False)
+            d.people.spread, d.people.static = np.full(1, spread), np.zeros(1, bool)
+        d.origin = np.array([1.5 * t, 0.0, 0.0])
+        tr.update(d)
+    assert len(tr.hyp) == 1 and tr.hyp.origin[0] == MOTION
+    assert tr.hyp.samples[0] >= 8
+    assert bool(tr.hyp.confirmed[0]) is confirmed
 
 
 def test_an_unseen_track_is_reported_only_with_report_unseen():

@@ -127,6 +127,26 @@ def test_a_recording_rewritten_as_another_scanner_keeps_its_topics_apart(tmp_pat
         assert scans[0].time_increment == pytest.approx(0.002)
 
 
+def test_a_recording_rewritten_as_a_faster_drive_keeps_the_scan_rate(tmp_path):
+    src = tmp_path / 'two'
+    with BagWriter(src) as bag:
+        for k in range(6):
+            for topic in ('/a', '/b'):
+                t = 10.0 + k * 0.1 + (0.01 if topic == '/b' else 0.0)
+                bag.write(topic, FACTORY.make(
+                    'sensor_msgs/msg/LaserScan', header=header(FACTORY, t, 'laser'),
+                    angle_min=-1.0, angle_max=1.0, angle_increment=0.5, time_increment=0.0,
+                    scan_time=0.1, range_min=0.05, range_max=30.0,
+                    ranges=FACTORY.float32_array(np.full(5, 1.0 + k)),
+                    intensities=FACTORY.float32_array(np.zeros(0))), t)
+    rewrite_scans(src, tmp_path / 'fast', ['/a', '/b'], scan_step=2, faster=True)
+    for topic, offset in (('/a', 0.0), ('/b', 0.005)):
+        scans = list(read_scans(tmp_path / 'fast', topic))
+        # scans 0, 2 and 4 (the robot twice as far each scan), 0.1 s apart as recorded
+        assert [s.ranges[0] for s in scans] == [1.0, 3.0, 5.0]
+        assert np.allclose([s.stamp for s in scans], 10.0 + offset + 0.1 * np.arange(3))
+
+
 def test_tracks_outside_the_labelled_area_count_only_on_a_labelled_person(tmp_path):
     src = tmp_path / 'positive'
     _positive_bag(src)
@@ -205,3 +225,17 @@ def test_bench_real_replays_negative_2_as_a_scanner_at_half_the_rate(tmp_path):
         sum(1 for _ in read_scans(tmp_path / 'work' / 'negative_2_inf_half_rate', t))
         for t in ('/left_scan', '/right_scan', '/rear_scan'))
     assert not any((s.ranges == 0).any() for s in half)
+
+
+@pytest.mark.skipif(not real_recording('leg_tracker/training/negative_2.bag').exists(),
+                    reason='negative_2.bag is not under $LASER_TRACKER_DATA (README.md, "Data")')
+def test_the_robot_of_negative_2_driving_twice_as_fast_confirms_nothing(tmp_path):
+    row = bench_real_row(tmp_path, 'negative_2_inf_fast', mode='defaults')
+    assert row['false_by_part'] == [0, 0, 0]
+    recorded = [s.stamp for s in read_scans(
+        real_recording('leg_tracker/training/negative_2.bag'), '/left_scan')]
+    fast = [s.stamp for s in read_scans(tmp_path / 'work' / 'negative_2_inf_fast',
+                                        '/left_scan')]
+    # every second scan, at the recorded rate: the robot goes twice as far between scans
+    assert len(fast) == (len(recorded) + 1) // 2
+    assert np.median(np.diff(fast)) == pytest.approx(np.median(np.diff(recorded)), rel=0.05)

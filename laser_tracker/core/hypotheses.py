@@ -233,12 +233,12 @@ class HypothesisConfig:
         'take longer. 0 = confirm_time; with confirm_time 0 no time applies.', min=0.0,
         max=10.0)
     person_confirm_pairs: int = param(
-        8, 'A hypothesis started by a person detection is also confirmed once this many '
-        'detections of two legs (a pair within person_detector.pair_distance) off static '
-        'background supported it: a person in view shows both legs from most sides, a post '
-        'or a single leg of furniture one, and legs that have long stood in one place (a '
-        'chair, a table) are static background and do not count. 0 = off.', min=0,
-        max=100000)
+        8, 'A hypothesis is also confirmed once this many detections of two legs (a pair '
+        'within person_detector.pair_distance) off static background supported it, however '
+        'it started (a person standing where the robot passes may first show as motion '
+        'blobs): a person in view shows both legs from most sides, a post or a single leg of '
+        'furniture one, and legs that have long stood in one place (a chair, a table) are '
+        'static background and do not count. 0 = off.', min=0, max=100000)
     gait_spread: float = param(
         0.0, 'A person whose two legs\' separation has varied by this much (m), off static '
         'background, is walking (the legs swing; chair or table legs keep their distance): '

@@ -47,6 +47,9 @@ with ``laser-tracker evaluate`` and prints one table (``--markdown`` for README.
   drives through a real building, scored as the leg scenes, pooled over the six;
   ``leg_scenes_driving_inf_odometry``: the same scenes with wheel odometry and the mount on
   /tf (as ``negative_2_inf_odometry``; three draws, pooled).
+* ``negative_2_inf_fast`` and ``leg_scenes_driving_inf_fast``: the same drive twice as fast
+  (every second scan at the recorded rate), with nobody in view and among the people of the
+  driving scenes.
 * ``..._reversed``: ``person_following``, Freiburg (both noise models, four draws each), MIT,
   ``negative_2_inf`` and the people of the leg and driving scenes played backwards
   (``tools.reverse``): the robot drives in reverse with its scanners looking where it came
@@ -58,6 +61,7 @@ What is not present is reported as missing, never failed. It takes a few minutes
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import logging
@@ -92,6 +96,11 @@ RECORDINGS += tuple(f'{base}_{name}' for base in ('negative_2_inf', 'leg_scenes_
                                                  'person_following')
                     for name, _, _ in OTHER_SCANNERS) + (
     'negative_2_inf_odometry', 'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry')
+#: ``..._fast``: the robot of ``negative_2`` driving this many times faster (every so many
+#: scans of its drive, at the recorded rate: 1.4 m/s and 0.55 rad/s median instead of 0.7 and
+#: 0.28), with nobody in view and among the people of the driving scenes.
+FASTER = 2
+RECORDINGS += ('negative_2_inf_fast', 'leg_scenes_driving_inf_fast')
 #: The subsampled corrected logs (Radish's intel and aces keep a scan every 0.6 to 1 m of the
 #: drive, 3 s apart): replayed with their scans this many seconds apart, the corrected poses
 #: with the Freiburg rows' realistic odometry noise (seed 0).
@@ -149,23 +158,31 @@ def mode_parameters(mode: str, files=(), overrides=None):
 
 
 def rewrite_scans(src: Path, dst: Path, scan_topics, beam_step: int = 1,
-                  scan_step: int = 1, as_inf: bool = True, attached=()) -> None:
+                  scan_step: int = 1, as_inf: bool = True, attached=(),
+                  faster: bool = False) -> None:
     """A rosbag2 copy of ``scan_topics`` of ``src`` whose no-return readings (0 and codes below
     ``range_min``; -inf stays) read +inf, as a driver following REP 117 writes them (unless
     ``as_inf`` is false); with ``beam_step`` / ``scan_step``, only every so many beams of
     every so many scans of each topic: the recording as a scanner with fewer beams or a lower
-    rate would have made it. The messages of ``attached`` topics (annotations, which belong
-    to the scan before them) are copied after the scans kept, not after those left out."""
+    rate would have made it; ``faster``: the scans kept stamped ``scan_step`` times closer
+    in time (from the first), so that they come at the recorded rate: the robot drove
+    ``scan_step`` times faster. The messages of ``attached`` topics (annotations, which
+    belong to the scan before them) are copied after the scans kept, not after those left
+    out."""
     from laser_tracker.conversions import scan_from_msg, scan_to_msg
     from laser_tracker.tools.bag import FACTORY, BagWriter, iter_messages
 
     seen: dict[str, int] = {}
     kept = False
+    start = None
+    rate = scan_step if faster else 1
     with BagWriter(dst) as bag:
         for topic, t_ns, msg in iter_messages(src, [*scan_topics, *attached]):
+            start = int(t_ns) if start is None else start
+            t_ns = start + (int(t_ns) - start) // rate
             if topic in attached:
                 if kept:
-                    bag.write(topic, msg, int(t_ns))
+                    bag.write(topic, msg, t_ns)
                 continue
             seen[topic] = seen.get(topic, -1) + 1
             kept = not seen[topic] % scan_step
@@ -176,7 +193,11 @@ def rewrite_scans(src: Path, dst: Path, scan_topics, beam_step: int = 1,
                 scan = scan.with_no_returns_as_inf()
             if beam_step > 1:
                 scan = scan.every_nth_beam(beam_step)
-            bag.write(topic, scan_to_msg(FACTORY, scan), int(t_ns))
+            if rate > 1:
+                first = start * 1e-9
+                scan = dataclasses.replace(scan, stamp=first + (scan.stamp - first) / rate,
+                                           stamp_ns=None)
+            bag.write(topic, scan_to_msg(FACTORY, scan), t_ns)
 
 
 def _recordings(work: Path) -> dict:
@@ -215,6 +236,14 @@ def _negative_inf(work: Path, negative: Path) -> Path:
     if not inf.exists():
         rewrite_scans(negative, inf, NEGATIVE_TOPICS)
     return inf
+
+
+def _negative_fast(work: Path, negative: Path) -> Path:
+    """``negative_2_inf`` driven ``FASTER`` times faster (written once)."""
+    fast = work / 'negative_2_inf_fast'
+    if not fast.exists():
+        rewrite_scans(negative, fast, NEGATIVE_TOPICS, scan_step=FASTER, faster=True)
+    return fast
 
 
 def _mit(work: Path, log: Path) -> Path:
@@ -324,17 +353,20 @@ def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
     """``leg_scenes_driving_inf`` -> [(scene bag, scoring extras)]: the people of each
     positive recording in the scans of one scanner of ``negative_2`` (in turn: left, right,
     rear; ``tools.driving_scenes``); ``leg_scenes_driving_inf_odometry``: the same scenes
-    with wheel odometry and the mount on /tf, as ``negative_2_inf_odometry``."""
+    with wheel odometry and the mount on /tf, as ``negative_2_inf_odometry``;
+    ``leg_scenes_driving_inf_fast``: the people in the scans of the robot driving
+    ``FASTER`` times faster."""
     from laser_tracker.tools import driving_scenes, leg_scenes
 
     negative = real_recording('leg_tracker/training/negative_2.bag')
-    if not {'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry'} & set(names) \
+    if not {'leg_scenes_driving_inf', 'leg_scenes_driving_inf_odometry',
+            'leg_scenes_driving_inf_fast'} & set(names) \
             or not negative.exists() or not leg_scenes.positive_recordings():
         return {}
 
-    def write(k, src, scene):
+    def write(k, src, scene, drive=negative):
         topic = NEGATIVE_TOPICS[k % len(NEGATIVE_TOPICS)]
-        return driving_scenes.write_driving_scene(src, negative, topic, scene)
+        return driving_scenes.write_driving_scene(src, drive, topic, scene)
 
     def with_odometry(k, src, scene, seed):
         plain, _ = parts[k]
@@ -350,6 +382,10 @@ def _driving_scenes(work: Path, names, with_detector: bool) -> dict:
             part for seed in SCENE_ODOMETRY_SEEDS for part in _scene_parts(
                 work, f'_driving_inf_odometry_seed{seed}',
                 functools.partial(with_odometry, seed=seed), with_detector)]
+    if 'leg_scenes_driving_inf_fast' in names:
+        found['leg_scenes_driving_inf_fast'] = _scene_parts(
+            work, '_driving_inf_fast',
+            functools.partial(write, drive=_negative_fast(work, negative)), with_detector)
     return found
 
 
@@ -402,9 +438,9 @@ def _reversed(work: Path, names, with_detector: bool) -> dict:
 
 def _other_scanners(work: Path, names) -> dict:
     """name -> [(bag, scan topic, scoring)] for the ``negative_2_inf`` and
-    ``person_following`` rows of the ``OTHER_SCANNERS`` asked for: the three scanners of
-    ``negative_2``, pooled in one row; the followed person's annotations after the scans
-    kept."""
+    ``person_following`` rows of the ``OTHER_SCANNERS`` asked for, and for
+    ``negative_2_inf_fast``: the three scanners of ``negative_2``, pooled in one row; the
+    followed person's annotations after the scans kept."""
     from laser_tracker.tools.annotations import ANNOTATION_TOPIC, register_person_type
     from laser_tracker.tools.bag import TYPESTORE
 
@@ -427,6 +463,9 @@ def _other_scanners(work: Path, names) -> dict:
             if not bag.exists():
                 rewrite_scans(negative, bag, NEGATIVE_TOPICS, beam_step, scan_step)
             found[name] = [(bag, t, 'negative') for t in NEGATIVE_TOPICS]
+    if 'negative_2_inf_fast' in names and negative.exists():
+        found['negative_2_inf_fast'] = [(_negative_fast(work, negative), t, 'negative')
+                                        for t in NEGATIVE_TOPICS]
     return found
 
 

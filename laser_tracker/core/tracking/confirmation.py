@@ -24,6 +24,14 @@ def _travel(h: Hypotheses, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
             np.hypot(*(frame.scanner.to_scanner(h.position) - h.start_local).T))
 
 
+def _legs_seen(c, h: Hypotheses) -> np.ndarray:
+    """Supported by ``person_confirm_pairs`` detections of both legs off static background
+    (0: never): a person in view, however the hypothesis started."""
+    if c.person_confirm_pairs <= 0:
+        return np.zeros(len(h), bool)
+    return h.pair_samples >= c.person_confirm_pairs
+
+
 def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
     """A hypothesis started by a person detection standing where the scans always saw
     something (chair and table legs look like legs) only once it has moved
@@ -39,9 +47,7 @@ def walked(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np
     out = (h.origin != PERSON) | (np.minimum(world, local) >= c.person_min_travel)
     if c.person_confirm_samples > 0:
         out |= h.person_samples >= c.person_confirm_samples
-    if c.person_confirm_pairs > 0:
-        out |= h.pair_samples >= c.person_confirm_pairs
-    return out
+    return out | _legs_seen(c, h)
 
 
 def moved_more_than_the_view(c, candidates: Hypotheses, confirmed: Hypotheses,
@@ -51,11 +57,14 @@ def moved_more_than_the_view(c, candidates: Hypotheses, confirmed: Hypotheses,
     displacement the scanner's motion since its start causes at its starting place (where
     a static object there now is in the scanner's frame against where it was then): a
     change that the changing viewpoint alone explains (parallax, beams that passed a static
-    object before, registration error) is no evidence of motion."""
+    object before, registration error) is no evidence of motion. Or, as for a hypothesis a
+    person detection started (:func:`walked`), ``person_confirm_pairs`` detections of both
+    legs off static background supported it: a person who stands where a driving robot
+    comes upon them shows as motion blobs first, and walks no farther."""
     h = candidates
     world, _ = _travel(h, frame)
     view = np.hypot(*(frame.scanner.to_scanner(h.start) - h.start_local).T)
-    return (h.origin == PERSON) | (world >= c.view_travel_ratio * view)
+    return (h.origin == PERSON) | (world >= c.view_travel_ratio * view) | _legs_seen(c, h)
 
 
 def not_riding_along(c, candidates: Hypotheses, confirmed: Hypotheses,
@@ -99,10 +108,11 @@ def fast_enough(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) 
 
 def travelled(c, candidates: Hypotheses, confirmed: Hypotheses, frame: Frame) -> np.ndarray:
     """Started by motion blobs: ``confirm_min_travel`` from where it was created (a moving
-    object goes somewhere; a thin static object flickering in the scans does not)."""
+    object goes somewhere; a thin static object flickering in the scans does not), unless
+    both legs of a person were seen there (:func:`_legs_seen`)."""
     h = candidates
     far = ((h.position - h.start) ** 2).sum(axis=1) >= c.confirm_min_travel ** 2
-    return far | (h.origin != MOTION)
+    return far | (h.origin != MOTION) | _legs_seen(c, h)
 
 
 def not_a_duplicate(c, candidates: Hypotheses, confirmed: Hypotheses,
