@@ -249,13 +249,19 @@ def _stream(config=None, sigma=0.005, seed=3):
     return est, path, scan
 
 
-def test_nan_inf_zero_negative_ranges_are_not_points():
-    est, path, scan = _stream(EgoMotionConfig(max_points=1000))
+def _third_scan(config=None):
+    """:func:`_stream` with odometry for three scans and the first two matched: the
+    estimator, the path, the scan maker and the third scan (not given yet)."""
+    est, path, scan = _stream(config)
     for k in range(3):
         est.add_odometry(0.2 * k, path[k])
     est.update(scan(0))
     est.update(scan(1))
-    s = scan(2)
+    return est, path, scan, scan(2)
+
+
+def test_nan_inf_zero_negative_ranges_are_not_points():
+    est, path, scan, s = _third_scan(EgoMotionConfig(max_points=1000))
     bad = np.arange(0, 361, 7)
     s.ranges[bad[0::4]] = np.nan
     s.ranges[bad[1::4]] = np.inf
@@ -269,12 +275,7 @@ def test_nan_inf_zero_negative_ranges_are_not_points():
 
 
 def test_all_max_range_scan_uses_odometry():
-    est, path, scan = _stream()
-    for k in range(3):
-        est.add_odometry(0.2 * k, path[k])
-    est.update(scan(0))
-    est.update(scan(1))
-    s = scan(2)
+    est, path, scan, s = _third_scan()
     s.ranges[:] = s.range_max  # open space: nothing returned
     e = est.update(s)
     assert e.source == SOURCE_ODOMETRY and 'too few valid points (0' in e.reason
@@ -328,12 +329,7 @@ def test_scans_with_every_beam_invalid_coast_and_the_chain_goes_on():
 
 
 def test_too_few_points_uses_odometry():
-    est, path, scan = _stream()
-    for k in range(3):
-        est.add_odometry(0.2 * k, path[k])
-    est.update(scan(0))
-    est.update(scan(1))
-    s = scan(2)
+    est, path, scan, s = _third_scan()
     s.ranges[10:] = np.inf  # ten returns left
     e = est.update(s)
     assert e.source == SOURCE_ODOMETRY and 'too few valid points (10 < 30)' in e.reason

@@ -93,6 +93,22 @@ class _Graph:
     def spin_until(self, predicate, timeout=5.0):
         spin_until(self.executor, predicate, timeout)
 
+    def play(self, messages, outputs=()) -> None:
+        """Publish a recording's ``messages``: odometry in order, each scan once the
+        odometry before it was received, the next once the scan's ``tracks`` (and one more
+        message on each list of ``outputs``) came back, as the offline pipeline sees them."""
+        sent_odom = 0
+        for topic, _, msg in messages:
+            if topic == '/odom':
+                self.odom_pub.publish(_to_ros(msg, topic))
+                sent_odom += 1
+                continue
+            self.spin_until(lambda: self.ego.odom_received >= sent_odom)
+            before = [len(out) for out in (self.tracks, *outputs)]
+            self.scan_pub.publish(_to_ros(msg, topic))
+            self.spin_until(lambda: all(len(out) > n for out, n in
+                                        zip((self.tracks, *outputs), before)))
+
     def close(self):
         self.executor.shutdown()
         for node in self.nodes + [self.io]:
@@ -134,17 +150,7 @@ def test_node_graph_publishes_the_offline_tracks(ros_context):
     graph = _Graph(ros_context)
     try:
         graph.wait_connected()
-        sent_odom = 0
-        for topic, _, msg in messages:
-            if topic == '/odom':
-                graph.odom_pub.publish(_to_ros(msg, topic))
-                sent_odom += 1
-                continue
-            # Odometry first, in order, as the offline pipeline sees it.
-            graph.spin_until(lambda: graph.ego.odom_received >= sent_odom)
-            n = len(graph.tracks)
-            graph.scan_pub.publish(_to_ros(msg, topic))
-            graph.spin_until(lambda: len(graph.tracks) > n)
+        graph.play(messages)
         assert_tracks_equal(graph.tracks, expected, atol=1e-6)
         # The head was aimed whenever there was a confirmed track to aim at.
         graph.spin_until(lambda: len(graph.commands) > 0)
@@ -302,16 +308,7 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
     try:
         assert graph.nodes[1].stage.difference_config.pose_min_inlier_ratio == strict
         graph.wait_connected()
-        sent_odom = 0
-        for topic, _, msg in messages:
-            if topic == '/odom':
-                graph.odom_pub.publish(_to_ros(msg, topic))
-                sent_odom += 1
-                continue
-            graph.spin_until(lambda: graph.ego.odom_received >= sent_odom)
-            n, m = len(graph.tracks), len(published_blobs)
-            graph.scan_pub.publish(_to_ros(msg, topic))
-            graph.spin_until(lambda: len(graph.tracks) > n and len(published_blobs) > m)
+        graph.play(messages, outputs=(published_blobs,))
         got_blobs = {}
         for array in published_blobs:
             d = detections_from_marker_array(array)

@@ -21,8 +21,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+class Rows:
+    """``count`` and ``len()``: how many rows ``xy`` holds (one per measurement)."""
+
+    @property
+    def count(self) -> int:
+        return int(np.shape(self.xy)[0])
+
+    def __len__(self) -> int:
+        return self.count
+
+
 @dataclass
-class Blobs:
+class Blobs(Rows):
     """The motion blobs of one scan (paper Sec. 6; ``core.blobs.segment``)."""
 
     xy: np.ndarray                        # (b, 2) positions, odometry frame, metres
@@ -31,13 +42,6 @@ class Blobs:
     structure: np.ndarray                 # (b,) radians (odometry frame, mod pi) or NaN
     dropped: int = 0                      # blobs dropped by blobs.max_blobs
 
-    @property
-    def count(self) -> int:
-        return int(self.xy.shape[0])
-
-    def __len__(self) -> int:
-        return self.count
-
     @classmethod
     def empty(cls) -> Blobs:
         return cls(xy=np.zeros((0, 2)), cells=np.zeros(0, dtype=np.int64), extent=np.zeros(0),
@@ -45,7 +49,7 @@ class Blobs:
 
 
 @dataclass
-class People:
+class People(Rows):
     """People found by the shape of their legs.
 
     ``free``: where all its legs stand was seen free before (someone who walked in);
@@ -58,20 +62,14 @@ class People:
     spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
     static: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
-    def __len__(self) -> int:
-        return int(np.shape(self.xy)[0])
-
 
 @dataclass
-class Segments:
+class Segments(Rows):
     """The scan's compact segments: centroids ``xy`` and ``leg``, each one's leg probability
     when the person detector runs (else 0)."""
 
     xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    def __len__(self) -> int:
-        return int(np.shape(self.xy)[0])
 
 
 @dataclass

@@ -44,6 +44,7 @@ import numpy as np
 from laser_tracker.config import param
 from laser_tracker.core import jit
 from laser_tracker.core.jit import pairwise_sum
+from laser_tracker.core.detections import Rows
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import (FEATURE_NAMES, FEATURE_SET, Clusters,
                                              SegmentConfig, _clusters, as_clusters,
@@ -286,7 +287,7 @@ class PersonDetectorConfig:
 
 
 @dataclass
-class PersonDetections:
+class PersonDetections(Rows):
     """People found in one scan (scanner frame) and the clusters behind them.
 
     Per person: ``xy`` (p, 2) metres, ``confidence`` (p,) in [0, 1], ``legs`` (p, 2) indices
@@ -307,13 +308,6 @@ class PersonDetections:
     is_leg: np.ndarray
     occluded: np.ndarray
     clusters: Clusters | None = field(default=None, repr=False)
-
-    @property
-    def count(self) -> int:
-        return int(self.xy.shape[0])
-
-    def __len__(self) -> int:
-        return self.count
 
     @classmethod
     def empty(cls, stamp: float = 0.0, frame_id: str = 'laser') -> PersonDetections:

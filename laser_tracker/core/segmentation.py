@@ -54,6 +54,7 @@ import numpy as np
 from laser_tracker.config import param
 from laser_tracker.core import jit
 from laser_tracker.core.jit import pairwise_sum
+from laser_tracker.core.detections import Rows
 from laser_tracker.core.scan import Scan, beam_table
 
 FEATURE_SET = 'leg-shape-1'
@@ -85,7 +86,7 @@ class SegmentConfig:
 
 
 @dataclass
-class Clusters:
+class Clusters(Rows):
     """The clusters of one scan that passed the size filters: plain arrays, one row each.
 
     ``first`` / ``last`` are beam indices into the scan; ``xy`` the centroid in the scanner
@@ -100,13 +101,6 @@ class Clusters:
     features: np.ndarray
     occluded: np.ndarray
     total: int = 0              # clusters found before the filters (0: too few points)
-
-    @property
-    def count(self) -> int:
-        return int(self.xy.shape[0])
-
-    def __len__(self) -> int:
-        return self.count
 
     @classmethod
     def empty(cls, total: int = 0) -> Clusters:
