@@ -39,8 +39,9 @@ deletion, confirmation):
     (paper: m = 4). A hypothesis' first sample is its creation pair (the first velocity
     measurement), each supporting blob adds one. Further rules (``core.tracking
     .confirmation``), each off at 0: ``person_min_travel`` / ``person_confirm_samples``,
-    ``person_confirm_pairs`` (whatever started the hypothesis), ``view_travel_ratio``, ``ride_along_speed``, ``confirm_time``, ``confirm_min_speed``,
-    ``confirm_min_travel``, ``duplicate_radius``, ``confirm_when_measured``.
+    ``person_confirm_pairs`` (whatever started the hypothesis), ``view_travel_ratio``,
+    ``ride_along_speed``, ``confirm_time``, ``confirm_min_speed``, ``confirm_min_travel``,
+    ``duplicate_radius``, ``confirm_when_measured``.
 
 Beyond the paper, person detections are measurements of their own kind (``person_*``), a
 confirmed track without support is held on a scan segment (``segment_gate``,

@@ -146,8 +146,8 @@ class CarmenLog:
         else:
             r = ranges[i]
         return Scan(stamp=float(self.stamps[i] if stamp is None else stamp), ranges=r,
-                    angle_min=self.angle_min, angle_increment=self.angle_increment, range_min=0.0,
-                    range_max=self.range_max, frame_id=frame_id)
+                    angle_min=self.angle_min, angle_increment=self.angle_increment,
+                    range_min=0.0, range_max=self.range_max, frame_id=frame_id)
 
     def scans(self, frame_id: str = 'laser') -> Iterator[Scan]:
         ranges = self.scan_ranges()

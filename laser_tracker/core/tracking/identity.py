@@ -123,8 +123,7 @@ class Identity(Role):
             self.lost = lost
             return
         person = hyp.is_person(c.person_kind_samples)[newly]
-        d = _distances_to_ways(hyp.position[newly], lost['seen'],
-                               lost['velocity'] * (t - lost['t_seen'])[:, None])
+        d = _distances_to_lost(hyp.position[newly], lost, t)
         d[person[:, None] != lost['person'][None, :]] = np.inf
         taken = np.zeros(len(lost), bool)
         done = np.zeros(len(newly), bool)
@@ -152,16 +151,18 @@ class Identity(Role):
                 & hyp.is_person(c.person_kind_samples)).nonzero()[0]
         if not len(lost) or not rows.size:
             return None
-        d = _distances_to_ways(hyp.position[rows], lost['seen'],
-                               lost['velocity'] * (t - lost['t_seen'])[:, None])
+        d = _distances_to_lost(hyp.position[rows], lost, t)
         mask = np.zeros(len(hyp), bool)
         mask[rows] = (d <= c.resume_radius).any(axis=1)
         return mask if mask.any() else None
 
 
-def _distances_to_ways(xy: np.ndarray, start: np.ndarray, way: np.ndarray) -> np.ndarray:
-    """(n, k): from each of ``xy`` (n, 2) to the segment from each ``start`` (k, 2) along
-    ``way`` (k, 2)."""
+def _distances_to_lost(xy: np.ndarray, lost: np.ndarray, t: float) -> np.ndarray:
+    """(n, k): from each of ``xy`` (n, 2) to the way of each ``lost`` track (rows of
+    ``LOST``) by ``t``: the segment from where it was last measured along its velocity then
+    for the time since."""
+    start = lost['seen']
+    way = lost['velocity'] * (t - lost['t_seen'])[:, None]
     rel = xy[:, None, :] - start[None, :, :]
     length2 = (way ** 2).sum(axis=1)
     f = np.clip((rel * way[None]).sum(axis=2) / np.maximum(length2, 1e-12)[None], 0.0, 1.0)
