@@ -341,7 +341,8 @@ def test_a_ctrl_c_inside_numbas_callbacks_is_raised_after_the_warm_up():
     from laser_tracker.tools.cli import _interrupt
 
     def frame(path):
-        return SimpleNamespace(f_code=SimpleNamespace(co_filename=path))
+        return SimpleNamespace(f_code=SimpleNamespace(co_filename=path, co_name="f"),
+                               f_back=None)
 
     callback = frame('/venv/lib/python3.11/site-packages/llvmlite/binding/executionengine.py')
     _interrupt(2, callback)                                  # kept back, nothing raised
@@ -352,3 +353,64 @@ def test_a_ctrl_c_inside_numbas_callbacks_is_raised_after_the_warm_up():
         _interrupt(2, frame('laser_tracker/tools/replay.py'))
     with pytest.raises(KeyboardInterrupt):
         _interrupt(2, None)
+
+
+def _caller_is_a_numba_callback() -> bool:
+    return jit.in_numba_callback(sys._getframe())
+
+
+class _ProbeOnUnpickling:
+    """Unpickled, it reports whether its reconstruction runs inside a numba callback."""
+
+    def __reduce__(self):
+        return (_caller_is_a_numba_callback, ())
+
+
+def test_numbas_unpickling_of_a_kernels_constants_is_a_callback():
+    """At a kernel's first call numba's C code calls back into Python to unpickle the
+    kernel's constants; a KeyboardInterrupt raised there becomes a SystemError with a
+    traceback (a Ctrl-C in the first second of a replay did that), so it is kept back too."""
+    import pickle
+
+    from numba.core.serialize import _numba_unpickle
+
+    data = pickle.dumps(_ProbeOnUnpickling())
+    assert _numba_unpickle(0, data, b'laser_tracker test probe') is True
+    assert not jit.in_numba_callback(sys._getframe())
+    assert not jit.in_numba_callback(None)
+
+
+def test_a_ctrl_c_kept_back_where_nothing_asks_for_it_is_raised_a_moment_later():
+    """Kept back in a numba callback, a Ctrl-C is raised within the CLI's retry time even
+    where the work never asks for it (a command without a scan loop); raised where it was
+    asked for first, the retry raises nothing more. (A process of its own: the retry uses
+    SIGALRM, as pytest-timeout does.)"""
+    script = textwrap.dedent('''
+        import time
+        from types import SimpleNamespace
+        from laser_tracker.core import jit
+        from laser_tracker.tools import cli
+        callback = SimpleNamespace(f_code=SimpleNamespace(
+            co_filename='/venv/lib/python3.11/site-packages/llvmlite/binding/ffi.py',
+            co_name='f'), f_back=None)
+        cli._interrupt(2, callback)
+        start = time.monotonic()
+        try:
+            time.sleep(2.0)
+            print('not raised')
+        except KeyboardInterrupt:
+            print('raised after', round(time.monotonic() - start, 2), jit.interrupt_pending())
+        cli._interrupt(2, callback)
+        try:
+            jit.raise_deferred_interrupt()
+        except KeyboardInterrupt:
+            pass
+        time.sleep(3 * cli.INTERRUPT_RETRY)
+        print('then nothing more')
+    ''')
+    out = subprocess.run([PYTHON, '-c', script], capture_output=True, text=True, timeout=120,
+                         cwd=ROOT)
+    lines = out.stdout.split('\n')
+    assert out.returncode == 0 and lines[0].startswith('raised after'), out
+    assert float(lines[0].split()[2]) < 1.0 and lines[0].endswith('False'), out
+    assert lines[1] == 'then nothing more', out

@@ -287,15 +287,35 @@ alive = inline(_alive)
 _interrupt_pending = threading.Event()
 
 
+def in_numba_callback(frame) -> bool:
+    """Whether ``frame``, or a frame that called it, is Python code that C calls back while
+    numba runs: llvmlite's (LLVM, while numba loads or compiles a kernel) or numba's unpickling
+    of a kernel's constants (at a kernel's first call). A KeyboardInterrupt raised there does
+    not reach the program: ctypes prints and drops it, numba's C code turns it into a
+    SystemError with a traceback."""
+    while frame is not None:
+        code = frame.f_code
+        path = code.co_filename.replace('\\', '/')
+        if '/llvmlite/' in path or (path.endswith('/numba/core/serialize.py')
+                                    and code.co_name == '_numba_unpickle'):
+            return True
+        frame = getattr(frame, 'f_back', None)
+    return False
+
+
 def defer_interrupt(frame) -> bool:
     """For a SIGINT handler: True (and the interrupt remembered) when the signal arrived in
-    llvmlite's Python code, which LLVM calls back while numba loads or compiles a kernel.
-    A KeyboardInterrupt raised there is printed and dropped by ctypes, and the program would
-    run on; :func:`raise_deferred_interrupt` raises it later, in plain Python."""
-    if frame is None or '/llvmlite/' not in frame.f_code.co_filename.replace('\\', '/'):
+    code that numba's C code called back (:func:`in_numba_callback`);
+    :func:`raise_deferred_interrupt` raises it later, in plain Python."""
+    if not in_numba_callback(frame):
         return False
     _interrupt_pending.set()
     return True
+
+
+def interrupt_pending() -> bool:
+    """A Ctrl-C that :func:`defer_interrupt` kept back has not been raised yet."""
+    return _interrupt_pending.is_set()
 
 
 def raise_deferred_interrupt() -> None:

@@ -17,6 +17,9 @@ from laser_tracker.errors import LaserTrackerError
 
 #: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
 INTERRUPTED = 130
+#: A Ctrl-C kept back while numba's C code called back into Python is raised at most this
+#: many seconds later (s).
+INTERRUPT_RETRY = 0.05
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -75,10 +78,30 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _interrupt(signum, frame) -> None:
-    """Ctrl-C: KeyboardInterrupt, unless numba's compiler is calling back into Python (it
-    would be dropped there); then a moment later (``jit.defer_interrupt``)."""
+    """Ctrl-C: KeyboardInterrupt, unless numba's C code is calling back into Python (it
+    would not reach the program from there: ``jit.defer_interrupt``); then where the work
+    next asks for it (``jit.raise_deferred_interrupt``), or :data:`INTERRUPT_RETRY` seconds
+    later, whichever comes first."""
     if not jit.defer_interrupt(frame):
         raise KeyboardInterrupt
+    _retry_interrupt()
+
+
+def _retry_interrupt() -> None:
+    if hasattr(signal, 'setitimer'):
+        signal.signal(signal.SIGALRM, _interrupt_later)
+        signal.setitimer(signal.ITIMER_REAL, INTERRUPT_RETRY)
+
+
+def _interrupt_later(signum, frame) -> None:
+    """The retry of a Ctrl-C kept back: raised now, unless it has been raised already or the
+    program is still inside numba's callback (then a moment later again)."""
+    if not jit.interrupt_pending():
+        return
+    if jit.in_numba_callback(frame):
+        _retry_interrupt()
+        return
+    jit.raise_deferred_interrupt()
 
 
 def console() -> int:
@@ -91,6 +114,8 @@ def console() -> int:
     caught, and Python would then end by killing itself with SIGINT at exit."""
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, 'setitimer'):     # a retry of a Ctrl-C kept back (_interrupt)
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
     if code == INTERRUPTED:
         sys.stdout.flush()
         sys.stderr.flush()
