@@ -226,7 +226,8 @@ def test_speed_is_judged_in_the_odometry_frame():
 # ------------------------------------------------------------------- oracle, end to end
 
 
-def run_eval(tmp_path, people, rows_of, n=40, ego_keep=None, ego_nan=(), extra_args=()):
+def run_eval(tmp_path, people, rows_of, n=40, ego_keep=None, ego_nan=(), extra_args=(),
+             summary=None):
     bag = tmp_path / 'bag'
     stamps = write_annotated_bag(bag, people, n)
     poses = scanner_poses(n)
@@ -234,7 +235,7 @@ def run_eval(tmp_path, people, rows_of, n=40, ego_keep=None, ego_nan=(), extra_a
     ego = [(stamps[k], *(poses[k] if k not in ego_nan else [np.nan] * 3))
            for k in range(n) if keep[k]]
     replay = tmp_path / 'replay'
-    write_replay(replay, ego, rows_of(stamps, poses))
+    write_replay(replay, ego, rows_of(stamps, poses), summary)
     assert run_cli('evaluate', replay, bag, '--no-figures', *extra_args) == 0
     return json.loads((replay / 'evaluation.json').read_text())
 
@@ -293,6 +294,35 @@ def test_a_sector_scores_only_the_annotations_and_tracks_within_its_bearings(tmp
     assert run_cli('evaluate', tmp_path / 'sector' / 'replay', tmp_path / 'sector' / 'bag',
                    '--no-figures', '--sector', '12', '-80') == 2
     assert '--sector 12 -80: the least and the largest bearing' in capsys.readouterr().err
+
+
+def test_an_upside_down_scanners_replay_is_scored_in_the_frame_turned_right_side_up(
+        tmp_path):
+    """The replay of a scanner hung upside down works in the frame turned right side up
+    (its scans mirrored): the annotations, in the scanner's own frame, are mirrored too, and
+    the person annotated 2 m ahead and 2 m to its left is tracked 2 m to the right there; so
+    is a sector (45 deg left is 45 deg right). Scored as a level scanner's, the same tracks
+    miss that person (the one ahead, near the axis of the mirror, is matched either way)."""
+    def people(k):
+        return follower(k) + [(7, 2.0, 2.0)]
+
+    def mirrored_people(k):
+        return [(oid, x, -y) for oid, x, y in people(k)]
+
+    def rows(stamps, poses):
+        return feed_back(stamps, poses, mirrored_people, 40)
+    mount = {'x': 0.0, 'y': 0.0, 'yaw': 0.0, 'source': '/tf_static', 'mirrored': True}
+    r = run_eval(tmp_path / 'flipped', people, rows, summary={'scanner_mount': mount})
+    mot = r['clear_mot']['all']
+    assert (mot['num_objects'], mot['num_misses'], mot['num_false_positives']) == (80, 0, 0)
+    r = run_eval(tmp_path / 'sector', people, rows, summary={'scanner_mount': mount},
+                 extra_args=('--sector', '30', '60'))
+    mot = r['clear_mot']['all']
+    assert (mot['num_objects'], mot['num_misses'], mot['num_false_positives']) == (40, 0, 0)
+    level = dict(mount, mirrored=False)
+    r = run_eval(tmp_path / 'level', people, rows, summary={'scanner_mount': level})
+    mot = r['clear_mot']['all']
+    assert (mot['num_misses'], mot['num_false_positives']) == (40, 40)
 
 
 def test_scans_without_ego_pose_are_not_scored_but_counted(tmp_path, caplog):

@@ -270,11 +270,12 @@ def test_a_ros1_recording_with_its_odometry_and_mount_only_on_tf_replays_with_bo
     assert 'odometry from /tf (odom -> base_footprint)' in capsys.readouterr().err
 
 
-def test_a_scanner_mounted_upside_down_is_said_not_taken_as_level(tmp_path, capsys):
+def test_a_scanner_mounted_upside_down_is_found_mirrored_and_a_tilted_one_is_said(tmp_path,
+                                                                                 capsys):
     """The recording's /tf_static hangs the scanner upside down under the base (rolled
-    180 deg, turned 0.5 rad): its scans are mirrored, which the planar mount cannot carry,
-    so replay says so; a scanner pitched 10 deg down towards the floor passes without a
-    word."""
+    180 deg, turned 0.5 rad): its scans are mirrored (the replay turns them over), and the
+    mount says so; a scanner pitched 10 deg down towards the floor passes without a word, one
+    pitched 60 deg is taken as level with a warning."""
     import math
 
     from laser_tracker.conversions import PlanarTransform, transforms_from_msg, \
@@ -302,9 +303,69 @@ def test_a_scanner_mounted_upside_down_is_said_not_taken_as_level(tmp_path, caps
     assert tr.yaw == pytest.approx(0.5) and tr.tilt == pytest.approx(math.pi)
     mount = recording_mount(upside_down, '/scan', '/base/odom', EgoMotionConfig())
     assert (mount.x, mount.y, mount.yaw) == pytest.approx((0.3, -0.1, 0.5))
-    assert 'upside down' in mount.message and 'tilted 180 deg' in mount.message
+    assert mount.mirrored and 'upside down' in mount.message
+    assert 'warning' not in mount.message
+    steep, tr = recording('steep', dict(x=0.0, y=math.sin(math.radians(30)), z=0.0,
+                                        w=math.cos(math.radians(30))))
+    mount = recording_mount(steep, '/scan', '/base/odom', EgoMotionConfig())
+    assert not mount.mirrored and 'warning: the scanner is tilted 60 deg' in mount.message
     pitched, tr = recording('pitched', dict(x=0.0, y=math.sin(math.radians(5)), z=0.0,
                                             w=math.cos(math.radians(5))))
     assert tr.tilt == pytest.approx(math.radians(10))
-    assert 'warning' not in recording_mount(pitched, '/scan', '/base/odom',
-                                            EgoMotionConfig()).message
+    mount = recording_mount(pitched, '/scan', '/base/odom', EgoMotionConfig())
+    assert not mount.mirrored and 'warning' not in mount.message
+
+
+def _level_pose(rotation, translation):
+    """(x, y, yaw of the x axis, mirrored) of a 3D transform whose z axis is near vertical."""
+    m = rotation.as_matrix()
+    return (translation[0], translation[1], math.atan2(m[1, 0], m[0, 0]), m[2, 2] < 0)
+
+
+@pytest.mark.parametrize('rolls', [(math.pi, 0.0), (0.0, math.pi), (math.pi, math.pi),
+                                   (math.pi, 0.0, math.pi), (0.0, 0.0)])
+def test_a_chain_of_mounts_with_links_upside_down_is_the_3d_chain_on_the_floor(rolls):
+    """Each link of base -> ... -> laser is a turn, an offset and a roll of 0 or 180 deg
+    (a mast hung under a plate, a scanner under the mast); the planar chain with mirrored
+    links puts the scanner where the 3D chain does, in either direction of the tree."""
+    from scipy.spatial.transform import Rotation
+
+    from laser_tracker.tools.mount import mount_between
+
+    rng = np.random.default_rng(len(rolls) + int(10 * sum(rolls)))
+    frames = ['base'] + [f'f{k}' for k in range(len(rolls) - 1)] + ['laser']
+    edges, flips = {}, {}
+    chain_r, chain_t = Rotation.identity(), np.zeros(3)
+    for k, roll in enumerate(rolls):
+        yaw, offset = rng.uniform(-math.pi, math.pi), rng.uniform(-0.5, 0.5, 3)
+        r = Rotation.from_euler('ZX', [yaw, roll])
+        edges[(frames[k], frames[k + 1])] = (offset[0], offset[1], yaw)
+        flips[(frames[k], frames[k + 1])] = abs(roll) > math.pi / 2
+        chain_t = chain_t + chain_r.apply(offset)
+        chain_r = chain_r * r
+    x, y, yaw, mirrored = _level_pose(chain_r, chain_t)
+    pose, flipped = mount_between(edges, 'base', 'laser', flips)
+    assert flipped == mirrored == (sum(f for f in flips.values()) % 2 == 1)
+    assert pose[:2] == pytest.approx((x, y))
+    assert math.remainder(pose[2] - yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+    back, flipped_back = mount_between(edges, 'laser', 'base', flips)
+    x, y, yaw, _ = _level_pose(chain_r.inv(), -chain_r.inv().apply(chain_t))
+    assert flipped_back == mirrored and back[:2] == pytest.approx((x, y))
+    assert math.remainder(back[2] - yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_mirrored_scan_is_the_same_returns_seen_from_the_other_side():
+    """Turned right side up, an upside-down scanner's return at (x, y) of its own frame lies
+    at (x, -y); turned over twice, the scan is itself again, whichever way its beams run."""
+    from laser_tracker.core.scan import Scan
+
+    rng = np.random.default_rng(3)
+    for increment in (math.radians(0.5), -math.radians(0.5)):
+        scan = Scan(1.0, rng.uniform(0.5, 8.0, 361), 0.3, increment, 0.1, 10.0, frame_id='l')
+        scan.ranges[::7] = np.inf
+        mirror = scan.mirrored()
+        a, b = scan.points(), mirror.points()
+        assert b[::-1] == pytest.approx(a * (1.0, -1.0))
+        twice = mirror.mirrored()
+        assert twice.angle_min == pytest.approx(scan.angle_min)
+        assert np.array_equal(twice.ranges, scan.ranges)

@@ -103,6 +103,14 @@ class Scan:
                                    angle_increment=self.angle_increment * step,
                                    time_increment=self.time_increment * step)
 
+    def mirrored(self) -> Scan:
+        """The scan of a scanner hung upside down, as the same scanner turned right side up
+        about its x axis would make it: the beam at angle ``a`` points along ``-a`` there.
+        The beams come in the other order so that the angles still run as the increment
+        says (the pipeline does not use the beams' times)."""
+        last = self.angle_min + (self.n_beams - 1) * self.angle_increment
+        return dataclasses.replace(self, ranges=self.ranges[::-1].copy(), angle_min=-last)
+
     def points(self, max_range: float | None = None) -> np.ndarray:
         """Cartesian end points (M, 2) of the valid beams, in the laser frame."""
         mask = self.valid()

@@ -106,6 +106,12 @@ class Annotations:
         return Annotations(self.bag, self.topic, self.scans, self.scan[mask], self.obj_id[mask],
                            self.x[mask], self.y[mask], dict(self.counts))
 
+    def mirrored(self) -> Annotations:
+        """The positions in the frame of an upside-down scanner turned right side up, the
+        frame of its replay (``Scan.mirrored``)."""
+        return Annotations(self.bag, self.topic, self.scans, self.scan, self.obj_id, self.x,
+                           -self.y, dict(self.counts))
+
 
 def register_person_type(typestore) -> None:
     """Add leg_tracker/msg/Person to a rosbags typestore (to write test recordings)."""
@@ -532,6 +538,11 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                  'placed by receive time, scans named by header stamp', bag, scans.topic,
                  abs(offset), 'ahead of' if offset > 0 else 'behind')
     ann = read_annotations(bag, topic, scans)
+    if replay.summary.get('scanner_mount', {}).get('mirrored'):
+        # an upside-down scanner's replay is in the frame turned right side up
+        ann = ann.mirrored()
+        area = None if area is None else (area[0], area[1], -area[3], -area[2])
+        sector = None if sector is None else (-sector[1], -sector[0])
     placed = len(ann)
     if persons:
         unknown = sorted({int(p) for p in persons} - set(ann.ids()))

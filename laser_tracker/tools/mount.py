@@ -6,7 +6,9 @@ transform between them (``ego_motion.mount_x``, ``mount_y``, ``mount_yaw``): a s
 0.85 m ahead of the base and turned 42 degrees that is taken to sit at the base puts every
 odometry prediction off by its lever arm as the robot turns. A recording usually carries the
 transform on ``/tf_static`` (or ``/tf``); :func:`recording_mount` finds it, composing a chain
-of frames if needed, and says where the mount came from.
+of frames if needed, and says where the mount came from. A scanner hung upside down (its z
+axis down) sees the platform's plane mirrored: :attr:`Mount.mirrored`, and the replay turns
+its scans over (``Scan.mirrored``) into the scans a level scanner in its place would make.
 
 A recording without an Odometry topic may still carry the odometry as transforms on ``/tf``
 (REP 105: ``odom`` -> the base frame, which is how ROS 1 trackers such as leg_tracker read
@@ -40,6 +42,7 @@ class Mount:
     message: str = ''               # what to tell the user ('' = nothing worth saying)
     base_frame: str | None = None   # the odometry's child frame, when the recording has one
     scan_frame: str | None = None   # the scans' frame, when read
+    mirrored: bool = False          # the scanner hangs upside down: its scans are mirrored
 
 
 def _first_frames(path: Path, scan_topic: str, odom_topic: str | None):
@@ -109,14 +112,40 @@ def path_tilt(tilts: dict, source: str, target: str) -> float:
     return 0.0 if up is None else math.acos(min(max(up, -1.0), 1.0))
 
 
-def find_transform(edges: dict, source: str, target: str):
+def find_transform(edges: dict, source: str, target: str, flips: dict | None = None):
     """Pose of ``target`` in ``source`` from planar edges ``{(parent, child): (x, y, yaw)}``,
-    following the frame tree in either direction; None if they are not connected."""
+    following the frame tree in either direction; None if they are not connected. ``flips``:
+    the edges whose child hangs upside down (``{(parent, child): True}``, see
+    :func:`mount_between`)."""
+    found = mount_between(edges, source, target, flips)
+    return None if found is None else found[0]
+
+
+def mount_between(edges: dict, source: str, target: str, flips: dict | None = None):
+    """``(pose, mirrored)`` of ``target`` in ``source`` (None if not connected): an upside-down
+    link (``flips``) mirrors its child's plane in its parent's, so a point ``(x, y)`` of
+    ``target`` lies at ``pose (+) (x, -y)`` when ``mirrored`` (an odd number of flips on the
+    way), at ``pose (+) (x, y)`` otherwise; ``yaw`` is where the target's x axis points."""
     links = {}
     for edge, pose in edges.items():
-        p = np.asarray(pose, dtype=float)
-        links[edge] = (p, inverse(p))
-    return _along_tree(links, source, target, np.zeros(3), compose)
+        link = (np.asarray(pose, dtype=float), bool(flips and flips.get(edge)))
+        links[edge] = (link, _inverse_mirrored(link))
+    return _along_tree(links, source, target, (np.zeros(3), False), _compose_mirrored)
+
+
+def _compose_mirrored(a, b):
+    """Link ``b`` after link ``a``, each ``(pose, mirrored)``: a mirrored ``a`` turns ``b``'s
+    offset and heading over."""
+    (pa, fa), (pb, fb) = a, b
+    if fa:
+        pb = np.array([pb[0], -pb[1], -pb[2]])
+    return compose(pa, pb), fa != fb
+
+
+def _inverse_mirrored(link):
+    pose, flipped = link
+    inv = inverse(pose)
+    return (np.array([inv[0], -inv[1], -inv[2]]) if flipped else inv), flipped
 
 
 def _along_tree(links: dict, source: str, target: str, start, combine):
@@ -168,22 +197,24 @@ def recording_mount(path: str | Path, scan_topic: str, odom_topic: str | None,
             for tr in transforms_from_msg(msg):
                 edges.setdefault((tr.parent, tr.child), (tr.x, tr.y, tr.yaw))
                 tilts.setdefault((tr.parent, tr.child), tr.tilt)
-            found = find_transform(edges, base_frame, scan_frame)
+            flips = {edge: tilt > math.pi / 2 for edge, tilt in tilts.items()}
+            found = mount_between(edges, base_frame, scan_frame, flips)
             if found is not None:
-                x, y, yaw = (float(v) for v in found)
+                x, y, yaw = (float(v) for v in found[0])
                 text = (f'scanner mount from the recording ({topic}, {base_frame} -> '
                         f'{scan_frame}): x={x:.3f} m, y={y:.3f} m, '
                         f'yaw={math.degrees(yaw):.1f} deg')
                 if has_config and not np.allclose(configured, (x, y, yaw), atol=1e-6):
                     text += ' (used instead of the configured ego_motion.mount_*)'
                 tilt = path_tilt(tilts, base_frame, scan_frame)
-                if tilt > MAX_TILT:
+                mirrored = found[1] and tilt > math.pi - MAX_TILT
+                if mirrored:
+                    text += ('; upside down: its scans are mirrored to the frame turned right '
+                             'side up')
+                elif MAX_TILT < tilt < math.pi - MAX_TILT:
                     text += (f'; warning: the scanner is tilted {math.degrees(tilt):.0f} deg '
-                             f'from {base_frame!r}' + (' (upside down: its scans are mirrored; '
-                                                       'flip them at the driver, e.g. '
-                                                       'sick_lms_driver inverted)'
-                                                       if tilt > math.pi / 2 else '')
-                             + ': laser_tracker takes scans as level')
+                             f'from {base_frame!r}: laser_tracker takes scans as level')
+                frames['mirrored'] = mirrored
                 return Mount(x, y, yaw, True, topic, text, **frames)
             if k >= MAX_TF_MESSAGES:
                 break

@@ -162,6 +162,7 @@ class RunRecorder:
         self.base_frame: str | None = None
         self.scan_frame = ''
         self.mount = np.zeros(3)
+        self.mirrored = False
         self.resolution = 0.1
         self._truth: tuple[np.ndarray, np.ndarray] | None = None   # platform truth, scanner
         self._annotations = None     # (annotations.Annotations, {scan index: its rows})
@@ -202,6 +203,7 @@ class RunRecorder:
 
         self.resolution = float(resolution)
         self.mount = np.array([mount.x, mount.y, mount.yaw], float)
+        self.mirrored = bool(mount.mirrored)     # scans turned over: their intensities too
         self.base_frame = (mount.base_frame or '').strip('/') or None
         if PLATFORM_TRUTH_TOPIC in info and info[PLATFORM_TRUTH_TOPIC][1]:
             truth = read_platform_truth(bag)
@@ -220,6 +222,8 @@ class RunRecorder:
             from laser_tracker.tools.bag import read_scan_times
 
             ann = read_annotations(bag, ANNOTATION_TOPIC, read_scan_times(bag, scan_topic))
+            if self.mirrored:
+                ann = ann.mirrored()
             self._annotations = (ann, {int(k): np.flatnonzero(ann.scan == k)
                                        for k in np.unique(ann.scan)})
 
@@ -238,6 +242,8 @@ class RunRecorder:
         definitions) with the annotations placed at it."""
         frame = scan.frame_id.strip('/')
         self.scan_frame = self.scan_frame or frame
+        if self.mirrored:
+            intensities = intensities[::-1]
         out = scan_to_msg(FACTORY, scan, intensities
                           if intensities.size == scan.n_beams else None)
         out.header.frame_id = frame

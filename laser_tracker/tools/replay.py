@@ -19,8 +19,9 @@ Configuration: ``--config FILE`` (repeatable, later files win) is read by the pa
 loader (``laser_tracker.parameters``), as the nodes read it: every node parameter that shapes
 the result is honoured (``odom_wait`` included), and an unknown node or parameter, or a bad
 value, is a one-line error. The scanner mount (base -> scanner) comes from the recording's
-``/tf_static`` / ``/tf`` when it has them (said so on stderr); a recording whose scan frame
-differs from its odometry's child frame with no known mount gets a warning.
+``/tf_static`` / ``/tf`` when it has them (said so on stderr; a scanner hung upside down has
+its scans mirrored, ``tools.mount``); a recording whose scan frame differs from its
+odometry's child frame with no known mount gets a warning.
 
 ``--scan-topic`` must be a LaserScan topic of the recording and a given ``--odom-topic`` an
 Odometry topic (a relative name means ``/name``); otherwise the error lists the recording's
@@ -365,6 +366,8 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                 process(pipeline.poll(arrival))
                 try:
                     scan = scan_from_msg(msg)
+                    if mount.mirrored:
+                        scan = scan.mirrored()
                 except (ScanError, ValueError, TypeError, AttributeError) as exc:
                     reason = f'malformed scan: {_generic(str(exc))}'
                     if not skipped[reason]:
@@ -406,7 +409,8 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
         'tracker': {k: int(v) for k, v in stats.items()},
         'ego_motion_sources': dict(pipeline.sources),
         'scanner_mount': {'x': config.ego_motion.mount_x, 'y': config.ego_motion.mount_y,
-                          'yaw': config.ego_motion.mount_yaw, 'source': mount.source},
+                          'yaw': config.ego_motion.mount_yaw, 'source': mount.source,
+                          'mirrored': mount.mirrored},
         'odom_wait': odom_wait,
         'timing': {
             'wall_s': wall,
