@@ -119,15 +119,14 @@ class SickScan:
     sequence: int
 
     def to_scan(self, frame_id: str = 'laser', inverted: bool = False) -> Scan:
+        """The scan; ``inverted``: of the scanner mounted upside down, as the same scanner
+        right side up would see it (``Scan.mirrored``)."""
         g = self.geometry
-        ranges, angle_min = self.ranges, g.angle_min
-        if inverted:  # upside down: beam i is at -(angle_min + i inc); list them ascending
-            ranges = ranges[::-1]
-            angle_min = -(g.angle_min + (g.count - 1) * g.angle_increment)
-        return Scan(stamp=self.stamp, ranges=ranges, angle_min=angle_min,
+        scan = Scan(stamp=self.stamp, ranges=self.ranges, angle_min=g.angle_min,
                     angle_increment=g.angle_increment, range_min=self.range_min,
                     range_max=self.range_max, time_increment=g.time_increment,
                     scan_time=g.scan_time, frame_id=frame_id)
+        return scan.mirrored() if inverted else scan
 
 
 @dataclass(frozen=True)
