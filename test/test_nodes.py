@@ -196,6 +196,42 @@ def test_bad_scans_are_skipped_and_tracking_continues(ros_context):
         graph.close()
 
 
+def test_a_second_scanner_on_the_scan_topic_is_skipped(ros_context):
+    """Two scanners on one topic: the graph follows the first scan's frame; the other
+    scanner's scans give no pose and no tracks."""
+    from nav_msgs.msg import Odometry
+
+    from laser_tracker.conversions import ros_factory, scan_to_msg
+    from laser_tracker.core.scan import Scan
+
+    graph = _Graph(ros_context)
+    poses = []
+    graph.io.create_subscription(Odometry, 'ego_motion', poses.append, 100)
+    try:
+        graph.wait_connected()
+        ranges = np.full(361, 4.0)
+
+        def scan(stamp, frame):
+            return scan_to_msg(ros_factory(), Scan(
+                stamp=stamp, ranges=ranges, angle_min=-math.pi / 2,
+                angle_increment=math.radians(0.5), range_min=0.01, range_max=8.0,
+                frame_id=frame))
+
+        for k, frame in enumerate(['laser_front', 'laser_rear'] * 3):
+            before = len(graph.tracks)
+            graph.scan_pub.publish(scan(1.0 + 0.1 * k, frame))
+            if frame == 'laser_front':
+                graph.spin_until(lambda: len(graph.tracks) > before)
+            else:
+                for _ in range(10):
+                    graph.executor.spin_once(timeout_sec=0.02)
+        assert len(graph.tracks) == 3
+        assert [p.child_frame_id for p in poses] == ['laser_front'] * 3
+        assert graph.ego.stage.events.counts['scan of another scanner skipped'] == 3
+    finally:
+        graph.close()
+
+
 def test_out_of_range_parameter_is_refused_with_its_name(ros_context):
     from rclpy.parameter import Parameter
 

@@ -427,3 +427,97 @@ def test_the_warm_up_keeps_nothing(monkeypatch):
     assert any(len(r.hypotheses.track_id) for r in before)
     _same_results(before, after)
     _same_results(before, rehearsing)
+
+
+def _front_and_rear(world, poses, n, frames=('laser_front', 'laser_rear')):
+    """Scans of two scanners on one topic, interleaved: one at the platform facing ahead,
+    one at the same place facing back (half a scan period later)."""
+    scans = []
+    for k in range(n):
+        t = 1.0 + k * DT
+        front = make_scan(world, poses(t), t, seed=k)
+        front.frame_id = frames[0]
+        x, y, th = poses(t + DT / 2)
+        rear = make_scan(world, (x, y, th + math.pi), t + DT / 2, seed=1000 + k)
+        rear.frame_id = frames[1]
+        scans += [front, rear]
+    return scans
+
+
+def _replay(pipeline, scans, poses):
+    results = []
+    for scan in scans:
+        for dt in (-0.05, 0.0, 0.05):
+            pipeline.add_odometry(scan.stamp + dt, poses(scan.stamp + dt))
+        results.append(pipeline.step(scan))
+    return results
+
+
+def test_a_second_scanner_on_the_same_topic_is_skipped_with_one_warning(caplog):
+    """Two scanners publishing on one topic: the pipeline follows the first scan's frame and
+    skips the other's scans, saying why (matching one scanner's view against the other's
+    would move every wall); what it makes of the followed scanner's scans is what it makes
+    of them alone."""
+    world = room()
+
+    def moving(t):
+        return np.array([0.4 * (t - 1.0), 0.1 * math.sin(t), 0.25 * (t - 1.0)])
+
+    scans = _front_and_rear(world, moving, 24)
+    with caplog.at_level(logging.WARNING):
+        both = _replay(Pipeline(), scans, moving)
+    alone = _replay(Pipeline(), scans[0::2], moving)
+    rear = both[1::2]
+    assert all('laser_rear' in r.skipped and 'one scanner per pipeline' in r.skipped
+               for r in rear)
+    for a, b in zip(both[0::2], alone):
+        assert a.skipped is None and b.skipped is None
+        assert np.array_equal(a.pose, b.pose)
+        assert np.array_equal(a.hypotheses.track_id, b.hypotheses.track_id)
+    assert not any(r.hypotheses.confirmed.any() for r in alone)
+    warnings = [r for r in caplog.records if 'another scanner' in r.getMessage()]
+    assert len(warnings) == 2          # the first and the 10th of 24 (no flood)
+    assert "'laser_rear'" in warnings[0].getMessage()
+    assert "'laser_front'" in warnings[0].getMessage()
+
+
+def test_two_scanners_taken_for_one_would_move_the_walls():
+    """The rule above is needed: the same scans with one frame name for both scanners are
+    matched against each other, and the static room seen from a moving platform is not
+    static any more."""
+    world = room()
+
+    def moving(t):
+        return np.array([0.4 * (t - 1.0), 0.1 * math.sin(t), 0.25 * (t - 1.0)])
+
+    scans = _front_and_rear(world, moving, 24, frames=('laser', 'laser'))
+    mixed = _replay(Pipeline(), scans, moving)
+    alone = _replay(Pipeline(), scans[0::2], moving)
+    blobs = sum(r.detections.blobs.count for r in mixed if r.skipped is None)
+    assert blobs > 4 * sum(r.detections.blobs.count for r in alone) + 20
+
+
+def test_a_scanner_that_falls_silent_is_followed_by_the_next_frame(caplog):
+    """A driver restarted under another frame name: once the followed scanner has sent
+    nothing for SCANNER_SILENCE, the pipeline restarts on the new frame (with a warning),
+    and a leading slash does not make another frame."""
+    from laser_tracker.core.stages import SCANNER_SILENCE
+    world = room()
+    scans = _front_and_rear(world, still, 40, frames=('laser', 'laser_new'))
+    scans[2].frame_id = '/laser'
+    stop = 10.0 * DT                       # the front scanner stops here
+    stream = [s for s in scans if s.frame_id.lstrip('/') != 'laser' or s.stamp < 1.0 + stop]
+    with caplog.at_level(logging.WARNING):
+        pipeline = Pipeline()
+        results = _replay(pipeline, stream, still)
+    last_front = max(s.stamp for s in stream if s.frame_id.lstrip('/') == 'laser')
+    for s, r in zip(stream, results):
+        if s.frame_id.lstrip('/') == 'laser':
+            assert r.skipped is None
+        elif s.stamp - last_front <= SCANNER_SILENCE:
+            assert 'one scanner per pipeline' in r.skipped
+        else:
+            assert r.skipped is None, (s.stamp, r.skipped)
+    assert pipeline.events()['ego_motion']['scanner changed'] == 1
+    assert pipeline.events()['ego_motion']['restart'] == 1
+    assert "following 'laser_new'" in caplog.text

@@ -64,6 +64,10 @@ MOVER_RADIUS = 0.4
 #: Odometry and scans whose stamps, against their arrival, differ by more than this (s: the
 #: range of ``ego_motion.odom_latency``) are of different clocks.
 CLOCK_TOLERANCE = 2.0
+#: A scanner silent this long (s of scan time) has stopped: a scan of another frame then
+#: starts the pipeline afresh on that scanner (a driver restarted under another frame name).
+#: The default ``difference.max_gap``: after such a gap nothing of the old history is used.
+SCANNER_SILENCE = 2.0
 
 
 # ------------------------------------------------------------------------------ ego-motion
@@ -109,6 +113,11 @@ class EgoMotion:
     restarts the estimator (the next pose says ``restarted``); non-finite odometry is skipped.
     The robot's own body (``core.self_mask``) is masked before the scan is matched, and
     learnt from every scan that got a pose.
+
+    One scanner per pipeline: the stage follows the frame of the first scan, and a scan of
+    another frame (a second scanner publishing on the same topic) is skipped with a warning,
+    since matching one scanner's view against another's moves every wall. Once the followed
+    scanner has been silent for ``SCANNER_SILENCE`` the stage restarts on the new frame.
     """
 
     def __init__(self, config: EgoMotionConfig | None = None, odom_wait: float = 0.0,
@@ -124,6 +133,8 @@ class EgoMotion:
         self.sources: dict[str, int] = {}
         self._restart_pending = False
         self.skipped: str | None = None     # why the last update returned None
+        self.scan_frame: str | None = None  # the followed scanner's frame
+        self._scan_frame_last = -math.inf   # stamp of its latest scan
         warm_up_once('ego-motion stage', _warm_up_ego_motion)
 
     # ---------------------------------------------------------------- stream
@@ -213,9 +224,38 @@ class EgoMotion:
         self.reset('parameters changed')
 
     # ---------------------------------------------------------------- one scan
+    def _of_followed_scanner(self, scan: Scan) -> bool:
+        """Whether ``scan`` comes from the followed scanner (adopting its frame when there is
+        none yet, or when the followed one has fallen silent: the pipeline restarts)."""
+        frame = scan.frame_id.lstrip('/')
+        if frame == self.scan_frame:
+            if math.isfinite(scan.stamp):
+                self._scan_frame_last = scan.stamp
+            return True
+        silent = scan.stamp - self._scan_frame_last
+        if self.scan_frame is not None and not silent > SCANNER_SILENCE:
+            self.skipped = (f'a scan of frame {frame!r} (one scanner per pipeline: this one '
+                            f'follows {self.scan_frame!r})')
+            self.events.note('scan of another scanner skipped',
+                             f'frame {frame!r} on the topic of {self.scan_frame!r}, which '
+                             'this pipeline follows: give each scanner its own topic and '
+                             'pipeline, or merge their scans into one first')
+            return False
+        if self.scan_frame is not None:
+            self.events.note('scanner changed', f'scans of {self.scan_frame!r} stopped '
+                             f'{silent:.1f} s ago; following {frame!r} from now on')
+            self.reset(f'another scanner ({frame!r})')
+            self.self_mask = self.estimator.self_mask = self._new_self_mask(
+                self.self_mask.config)
+        self.scan_frame = frame
+        self._scan_frame_last = scan.stamp if math.isfinite(scan.stamp) else -math.inf
+        return True
+
     def update(self, scan: Scan) -> StampedPose | None:
         """The pose of ``scan``, or None (``skipped`` says why)."""
         self.skipped = None
+        if not self._of_followed_scanner(scan):
+            return None
         verdict = self.rules.screen(scan.stamp, 'scan', self.events)
         if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
