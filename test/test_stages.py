@@ -311,3 +311,15 @@ def test_switching_the_footprint_rule_on_rebuilds_the_ray_tables():
     det.update(ring_scan(DT), pose(DT))
     table = det.builder.table(ring_scan(DT))
     assert (table.rays[2] > table.rays[1]).any()           # near cells span several beams
+
+
+def test_scans_whose_stamp_is_never_set_are_named_as_such(caplog):
+    """A driver that leaves header.stamp at 0: the scans after the first are duplicates, and
+    the warning says what the 0 means."""
+    import logging
+    stage = EgoMotion()
+    with caplog.at_level(logging.WARNING):
+        assert stage.update(ring_scan(0.0)) is not None
+        assert stage.update(ring_scan(0.0)) is None
+    assert stage.skipped == 'duplicate stamp'
+    assert 'never sets it' in caplog.text

@@ -92,7 +92,8 @@ class StreamRules:
         skipped: ...' (the caller drops the item)."""
         verdict = self.classify(stamp)
         if verdict in SKIPPED:
-            events.note(f'{item} skipped: {verdict} stamp', f't={stamp!r}')
+            unset = ' (a header stamp of 0: its publisher never sets it)' if stamp == 0 else ''
+            events.note(f'{item} skipped: {verdict} stamp', f't={stamp!r}{unset}')
         return verdict
 
     def accept(self, stamp: float) -> None:

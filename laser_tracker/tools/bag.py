@@ -248,9 +248,22 @@ def iter_messages(path: str | Path, topic_names: Iterable[str]) -> Iterator[tupl
         reader.close()
 
 
+def stamp_if_unstamped(msg, receive_ns: int) -> bool:
+    """Give a scan or odometry message whose header stamp was never set (0, from a driver
+    or simulator that leaves it) its receive time in the recording; True if it did. Every
+    such message would otherwise carry the same stamp, and all but the first be skipped."""
+    stamp = msg.header.stamp
+    if stamp.sec != 0 or stamp.nanosec != 0 or receive_ns <= 0:
+        return False
+    stamp.sec, stamp.nanosec = divmod(int(receive_ns), 1_000_000_000)
+    return True
+
+
 def read_scans(path: str | Path, topic: str = SCAN_TOPIC) -> Iterator[Scan | ScanError]:
-    """Scans of ``topic``; a malformed scan is yielded as its ScanError for the caller to skip."""
-    for _, _, msg in iter_messages(path, [topic]):
+    """Scans of ``topic``; a malformed scan is yielded as its ScanError for the caller to skip.
+    A scan without a header stamp gets its receive time (:func:`stamp_if_unstamped`)."""
+    for _, t_ns, msg in iter_messages(path, [topic]):
+        stamp_if_unstamped(msg, t_ns)
         try:
             yield scan_from_msg(msg)
         except ScanError as exc:
@@ -269,9 +282,11 @@ class PoseTrack:
 
 
 def read_odometry(path: str | Path, topic: str = ODOM_TOPIC) -> PoseTrack:
-    """Every Odometry message of ``topic`` as a PoseTrack, in the order recorded."""
+    """Every Odometry message of ``topic`` as a PoseTrack, in the order recorded (one without
+    a header stamp at its receive time)."""
     rows = []
-    for _, _, msg in iter_messages(path, [topic]):
+    for _, t_ns, msg in iter_messages(path, [topic]):
+        stamp_if_unstamped(msg, t_ns)
         o = odometry_from_msg(msg)
         rows.append((o.stamp, o.x, o.y, o.theta))
     arr = np.array(rows, dtype=float).reshape(-1, 4)
@@ -420,7 +435,8 @@ class ScanTimes:
 
 
 def read_scan_times(path: str | Path, topic: str = SCAN_TOPIC) -> ScanTimes:
-    """Receive times and header stamps of every message on ``topic``, in receive order.
+    """Receive times and header stamps of every message on ``topic``, in receive order (the
+    receive time for a scan without a header stamp, as the replay stamps it).
 
     Raises InputFileError when the recording has no such LaserScan topic.
     """
@@ -430,6 +446,7 @@ def read_scan_times(path: str | Path, topic: str = SCAN_TOPIC) -> ScanTimes:
     receive, stamps, frame = [], [], ''
     for _, t_ns, msg in iter_messages(path, [topic]):
         receive.append(int(t_ns))
+        stamp_if_unstamped(msg, t_ns)
         stamps.append(stamp_to_sec(msg.header.stamp))
         frame = frame or str(msg.header.frame_id)
     order = np.argsort(np.asarray(receive, np.int64), kind='stable')

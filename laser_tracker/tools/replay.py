@@ -11,7 +11,8 @@ stream rules. It writes into ``--out DIR``:
   hypothesis per scan, positions and velocities in the odometry frame (``confirmed`` and
   ``moving`` are 0/1);
 * ``summary.json``: scans, scans skipped with their reasons, every stage's counted events,
-  hypotheses created, confirmed tracks, ego-motion sources, the scanner mount used, timing,
+  messages stamped with their receive time (no header stamp), hypotheses created, confirmed
+  tracks, ego-motion sources, the scanner mount used, timing,
   the configuration used;
 * ``tracks.png`` (paper Fig. 10) and, with ``--figure-scan K``, ``scan_K.png`` (Fig. 5 / 7).
 
@@ -59,7 +60,7 @@ from laser_tracker.core.scan import ScanError
 from laser_tracker.errors import InputFileError
 from laser_tracker.tools.atomic import (atomic_path, check_output, removed_on_failure,
                                         write_json)
-from laser_tracker.tools.bag import resolve_bag
+from laser_tracker.tools.bag import resolve_bag, stamp_if_unstamped
 
 log = logging.getLogger(__name__)
 
@@ -178,6 +179,16 @@ def _odometry_poses(msg, tf_odom) -> list[tuple[float, np.ndarray]]:
             if t.parent == tf_odom.odom_frame and t.child == tf_odom.base_frame]
 
 
+def _note_unstamped(msg, topic: str, receive_ns: int, counts: Counter) -> None:
+    """Stamp a message without a header stamp with its receive time, saying so once per
+    topic (:func:`tools.bag.stamp_if_unstamped`)."""
+    if stamp_if_unstamped(msg, receive_ns):
+        if not counts[topic]:
+            log.warning('%s carries no header stamp (0): each such message is stamped with '
+                        'its receive time in the recording', topic)
+        counts[topic] += 1
+
+
 def _fmt(v: float) -> str:
     return f'{v:.6f}' if math.isfinite(v) else 'nan'
 
@@ -290,6 +301,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
     scanner: list[tuple] = []
     files: list[str] = []
     odometry_messages = 0
+    unstamped: Counter = Counter()     # topic -> messages stamped with their receive time
     skipped_odometry: Counter = Counter()
     damage = None
     scan_index = -1
@@ -352,6 +364,8 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                     continue
                 if topic != scan_topic:
                     try:
+                        if tf_odom is None:
+                            _note_unstamped(msg, topic, t_ns, unstamped)
                         poses = _odometry_poses(msg, tf_odom)
                     except Exception as exc:   # noqa: BLE001 - any malformed message
                         skipped_odometry[f'malformed: {type(exc).__name__}'] += 1
@@ -365,6 +379,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                 bar.update(1)
                 process(pipeline.poll(arrival))
                 try:
+                    _note_unstamped(msg, topic, t_ns, unstamped)
                     scan = scan_from_msg(msg)
                     if mount.mirrored:
                         scan = scan.mirrored()
@@ -402,6 +417,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
         'scan_messages': scan_index + 1,
         'scans_skipped': dict(skipped),
         'odometry_messages': odometry_messages,
+        'stamped_with_receive_time': dict(unstamped),
         'odometry_skipped': dict(skipped_odometry),
         'events': pipeline.events(),
         'hypotheses_created': int(stats['created']),
