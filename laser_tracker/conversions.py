@@ -442,7 +442,8 @@ def ego_motion_to_msgs(factory: MessageFactory, pose):
     when the scan match was refused), ``unmatched`` (fraction of the scan's points the match
     left unexplained), ``restarted`` (the pose chain restarted here: odometry-frame history is
     void), ``trusted`` (for people reading it: whether the default gate trusts it),
-    ``reason`` and ``self_mask`` (the robot's own body in this scan, :func:`encode_body`).
+    ``reason``, ``self_mask`` (the robot's own body in this scan, :func:`encode_body`) and
+    ``mirrored`` (the pose is that of the scan turned over: the scanner hangs upside down).
     """
     from laser_tracker.core.difference import DifferenceConfig, pose_trusted
 
@@ -469,7 +470,8 @@ def ego_motion_to_msgs(factory: MessageFactory, pose):
               'restarted': 'true' if q.restarted else 'false',
               'trusted': 'true' if trusted else 'false',
               'reason': str(pose.reason)[:200],
-              'self_mask': encode_body(pose.body)}
+              'self_mask': encode_body(pose.body),
+              'mirrored': 'true' if pose.mirrored else 'false'}
     f = factory
     status = f.make('diagnostic_msgs/msg/DiagnosticStatus', level=f.byte(0 if trusted else 1),
                     name=EGO_STATUS_NAME, message=f'{pose.source}: {pose.reason}'[:200],
@@ -513,13 +515,15 @@ def ego_motion_from_msgs(odometry_msg, status_msg=None):
         quality = PoseQuality(variance, unmatched, restarted)
         source, reason = values.get('source', ''), values.get('reason', '')
         body = decode_body(values.get('self_mask', ''))
+        mirrored = values.get('mirrored', 'false') == 'true'
     else:
-        body = None
+        body, mirrored = None, False
     return StampedPose(stamp=odo.stamp, pose=pose, motion=np.zeros(3),
                        motion_covariance=np.zeros((3, 3)), pose_covariance=pose_cov,
                        quality=quality, source=source, reason=reason,
                        frame_id=odo.frame_id or 'odom', child_frame_id=odo.child_frame_id,
-                       stamp_ns=stamp_to_ns(odometry_msg.header.stamp), body=body)
+                       stamp_ns=stamp_to_ns(odometry_msg.header.stamp), body=body,
+                       mirrored=mirrored)
 
 
 def encode_body(body) -> str:

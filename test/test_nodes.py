@@ -291,6 +291,19 @@ def test_pose_and_its_quality_cross_the_ego_motion_topics_unchanged():
         assert pose_trusted(alone.quality, gate) and not alone.quality.restarted
 
 
+def _starts_with(monkeypatch, module, name: str, parameters: dict) -> None:
+    """``module.name`` (a node class) starts with ``parameters`` set, for this test."""
+    from rclpy.parameter import Parameter
+
+    class Configured(getattr(module, name)):
+        def __init__(self, **kwargs):
+            super().__init__(parameter_overrides=[Parameter(key, value=value)
+                                                  for key, value in parameters.items()],
+                             **kwargs)
+
+    monkeypatch.setattr(module, name, Configured)
+
+
 def _offline_gated(messages, config):
     """Per scan stamp: blob positions and confirmed tracks of the offline pipeline."""
     from laser_tracker.conversions import odometry_from_msg, scan_from_msg
@@ -318,7 +331,6 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
     """With a strict inlier-ratio gate some scans of the recording are not trusted: the
     quality crosses ego_motion -> detection in the message and the graph withholds the same
     scans' blobs as ``Pipeline.step``."""
-    from rclpy.parameter import Parameter
     from visualization_msgs.msg import MarkerArray
 
     import laser_tracker.nodes.detection as detection
@@ -332,12 +344,8 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
     assert gated > 0, 'the strict gate should withhold some scans'
     assert sum(len(b) == 0 for b in blobs.values()) >= gated
 
-    class StrictDetection(detection.DetectionNode):
-        def __init__(self, **kwargs):
-            super().__init__(parameter_overrides=[
-                Parameter('difference.pose_min_inlier_ratio', value=strict)], **kwargs)
-
-    monkeypatch.setattr(detection, 'DetectionNode', StrictDetection)
+    _starts_with(monkeypatch, detection, 'DetectionNode',
+                 {'difference.pose_min_inlier_ratio': strict})
     graph = _Graph(ros_context)
     published_blobs = []
     graph.io.create_subscription(MarkerArray, 'blobs', published_blobs.append, 100)
@@ -359,6 +367,32 @@ def test_node_graph_applies_the_pose_gate_as_the_offline_pipeline(ros_context, m
                 got_tracks[round(stamp, 6)] = sorted((o.id, o.x, o.y) for o in objects)
         for stamp, expected in tracks.items():
             assert [t[0] for t in got_tracks[stamp]] == [t[0] for t in expected], stamp
+    finally:
+        graph.close()
+
+
+@pytest.mark.skipif(not BAG.exists(), reason=f'{BAG} not generated')
+def test_an_upside_down_scanner_is_turned_over_by_the_ego_motion_parameter(ros_context,
+                                                                          monkeypatch):
+    """``ego_motion.mount_upside_down``: the graph fed the scans of a scanner hung upside
+    down publishes the tracks of the level scanner; detection turns the scans over as the
+    pose's status says."""
+    import laser_tracker.nodes.ego_motion as ego_motion
+    from laser_tracker.conversions import ros_factory, scan_from_msg, scan_to_msg
+
+    messages = _bag_messages()
+    expected = _offline_tracks(messages)
+    assert any(expected.values())
+    upside_down = [(topic, t, scan_to_msg(ros_factory(), scan_from_msg(msg).mirrored())
+                    if topic == '/scan' else msg) for topic, t, msg in messages]
+
+    _starts_with(monkeypatch, ego_motion, 'EgoMotionNode', {'ego_motion.mount_upside_down': True})
+    graph = _Graph(ros_context)
+    try:
+        assert graph.ego.stage.config.mount_upside_down
+        graph.wait_connected()
+        graph.play(upside_down)
+        assert_tracks_equal(graph.tracks, expected, atol=1e-4)
     finally:
         graph.close()
 

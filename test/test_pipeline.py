@@ -521,3 +521,41 @@ def test_a_scanner_that_falls_silent_is_followed_by_the_next_frame(caplog):
     assert pipeline.events()['ego_motion']['scanner changed'] == 1
     assert pipeline.events()['ego_motion']['restart'] == 1
     assert "following 'laser_new'" in caplog.text
+
+
+def test_a_scanner_hung_upside_down_is_turned_over_by_its_mount_parameter():
+    """``ego_motion.mount_upside_down``: the scans of a scanner hung upside down (each the
+    mirror image of the level scanner's) give the poses, blobs and tracks of the level
+    scanner, and the result's scan is the level one; taken as level they do not."""
+    world = room()
+
+    def moving(t):
+        return np.array([0.3 * (t - 1.0), 0.0, 0.2 * (t - 1.0)])
+
+    def mover(t):
+        return [(3.0, -3.0 + (t - 1.0), 0.12)]
+
+    def replay(config, turn_over):
+        pipeline, results = Pipeline(config), []
+        for k in range(30):
+            t = 1.0 + k * DT
+            for dt in (-0.05, 0.0, 0.05):
+                pipeline.add_odometry(t + dt, moving(t + dt))
+            scan = make_scan(world, moving(t), t, mover(t), seed=k)
+            results.append(pipeline.step(scan.mirrored() if turn_over else scan))
+        return results
+
+    upside_down = PipelineConfig().replace(ego_motion={'mount_upside_down': True})
+    level = replay(PipelineConfig(), False)
+    turned = replay(upside_down, True)
+    assert any(r.hypotheses.confirmed.any() for r in level)
+    for a, b in zip(level, turned):
+        assert b.ego.mirrored and not a.ego.mirrored
+        np.testing.assert_allclose(b.pose, a.pose, atol=1e-9)
+        np.testing.assert_allclose(b.detections.blobs.xy, a.detections.blobs.xy, atol=1e-9)
+        assert np.array_equal(b.hypotheses.track_id, a.hypotheses.track_id)
+        np.testing.assert_allclose(b.hypotheses.position, a.hypotheses.position, atol=1e-9)
+        np.testing.assert_allclose(b.scan.ranges, a.scan.ranges)
+    taken_as_level = replay(PipelineConfig(), True)
+    drift = max(abs(b.pose[2] - a.pose[2]) for a, b in zip(level, taken_as_level))
+    assert drift > 0.5                 # it turns against the odometry

@@ -119,6 +119,13 @@ class EgoMotionConfig:
     mount_y: float = param(0.0, 'Scanner position on the platform, left (m).',
                            min=-10.0, max=10.0)
     mount_yaw: float = param(0.0, 'Scanner yaw on the platform (rad).', min=-_PI, max=_PI)
+    mount_upside_down: bool = param(
+        False, 'The scanner hangs upside down (rolled or pitched by 180 deg): its scans are '
+        'turned over into those of the same scanner right side up (its left is the '
+        'platform\'s right) before ego-motion and detection use them; mount_yaw is then where '
+        'its x axis points. For a driver without such an option (the SICK driver has '
+        '"inverted": set one of the two, not both). A replay sets it from the recording\'s '
+        'transforms.')
     # --- odometry
     odom_latency: float = param(
         0.0, 'Odometry time stamps minus the true time of the pose (s): the pose for a scan '

@@ -83,7 +83,9 @@ class StampedPose:
     (motion covariances accumulated); ``quality``: what the detection gate reads.
     ``stamp_ns``: the scan's exact stamp when known (messages are restamped with it).
     ``body``: per beam of the scan, the farthest range of the robot's own body (NaN: none;
-    ``core.self_mask``): detection masks those returns as ego-motion did.
+    ``core.self_mask``): detection masks those returns as ego-motion did. ``mirrored``: the
+    pose is that of the scan turned over (``ego_motion.mount_upside_down``, ``Scan.mirrored``),
+    and detection turns the scan over too.
     """
 
     stamp: float
@@ -100,6 +102,7 @@ class StampedPose:
     stamp_ns: int | None = None
     estimate: EgoMotionEstimate | None = field(default=None, repr=False)
     body: np.ndarray | None = field(default=None, repr=False)
+    mirrored: bool = False
 
 
 class EgoMotion:
@@ -262,6 +265,9 @@ class EgoMotion:
             return None
         if verdict == BACKWARDS:
             self.reset(f'time went backwards ({self.rules.last:.3f} -> {scan.stamp:.3f} s)')
+        mirrored = bool(self.config.mount_upside_down)
+        if mirrored:
+            scan = scan.mirrored()
         # the body is masked, the scan matched and the body learnt in one kernel call
         est = self.estimator.update(scan)
         source = str(est.source)
@@ -282,7 +288,7 @@ class EgoMotion:
                            source=source, reason=str(est.reason), dt=float(est.dt),
                            frame_id=self.frame_id, child_frame_id=scan.frame_id,
                            stamp_ns=scan.stamp_ns, estimate=est,
-                           body=self.self_mask.applied)
+                           body=self.self_mask.applied, mirrored=mirrored)
 
 
 # ------------------------------------------------------------------------------- detection
@@ -300,6 +306,7 @@ class Detection:
     changed_cells: np.ndarray | None = None  # flat indices of the cells that made the blobs
     gated: bool = False                # pose not trusted: no changes reported
     persons: object | None = None      # person_detector.PersonDetections (scanner frame)
+    scan: Scan | None = None           # the scan as detection used it (turned over: mirrored)
 
 
 class Detector:
@@ -400,9 +407,12 @@ class Detector:
         """Grid of ``scan``, Eq. 1 against the previous grid, blobs (odometry frame).
 
         When ``difference.pose_gate`` does not trust the pose (``pose.quality``), the grid is
-        built and kept as history as usual but no change is reported.
+        built and kept as history as usual but no change is reported. A pose of the scan
+        turned over (``pose.mirrored``) turns ``scan`` over first.
         """
         self.skipped = None
+        if pose.mirrored:
+            scan = scan.mirrored()
         verdict = self.rules.screen(scan.stamp, 'scan', self.events)
         if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
@@ -418,10 +428,12 @@ class Detector:
             self.events.note('history dropped', 'the ego-motion pose chain restarted')
             self.reset()
         self.rules.accept(scan.stamp)
+        measured = scan
         view = View.of_scan(scan)           # the robot's body hides what lies behind it
         scan = _without_body(scan, pose.body)
         at = np.asarray(pose.pose, dtype=float)
         det = self._detect(scan, at, want_grids, pose.quality)
+        det.scan = measured
         self._people_and_segments(scan, at, det)
         det.detections.view = view
         self._add_to_background(at, float(scan.stamp), det)

@@ -21,7 +21,8 @@ loader (``laser_tracker.parameters``), as the nodes read it: every node paramete
 the result is honoured (``odom_wait`` included), and an unknown node or parameter, or a bad
 value, is a one-line error. The scanner mount (base -> scanner) comes from the recording's
 ``/tf_static`` / ``/tf`` when it has them (said so on stderr; a scanner hung upside down has
-its scans mirrored, ``tools.mount``); a recording whose scan frame differs from its
+its scans turned over, ``tools.mount``, ``ego_motion.mount_upside_down``, which a parameter
+file may also set); a recording whose scan frame differs from its
 odometry's child frame with no known mount gets a warning.
 
 ``--scan-topic`` must be a LaserScan topic of the recording and a given ``--odom-topic`` an
@@ -284,13 +285,16 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                             config.ego_motion, tf_odom.base_frame if tf_odom else None)
     if mount.from_recording:
         config = dataclasses.replace(config, ego_motion=dataclasses.replace(
-            config.ego_motion, mount_x=mount.x, mount_y=mount.y, mount_yaw=mount.yaw))
+            config.ego_motion, mount_x=mount.x, mount_y=mount.y, mount_yaw=mount.yaw,
+            mount_upside_down=mount.mirrored))
+    upside_down = config.ego_motion.mount_upside_down
     if mount.message:
         print(f'{bag_path.name}: {mount.message}', file=sys.stderr)
     n_scans = int(info[scan_topic][1])
     passthrough: set[str] = set()
     if recorder is not None:
-        recorder.start(bag_path, info, scan_topic, mount, config.grid.resolution)
+        recorder.start(bag_path, info, scan_topic, dataclasses.replace(
+            mount, mirrored=upside_down), config.grid.resolution)
         passthrough = set(recorder.passthrough_topics) - set(wanted)
         wanted += sorted(passthrough)
 
@@ -348,7 +352,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                         on_confirmed(float(result.stamp), tid, float(h.position[j, 0]),
                                      float(h.position[j, 1]), float(h.velocity[j, 0]),
                                      float(h.velocity[j, 1]))
-                if result.scan is state['figure'] and out_dir is not None:
+                if result.stamp == state['figure'] and out_dir is not None:
                     from laser_tracker.tools.figures import scan_figure
                     name = f'scan_{figure_scan}.png'
                     scan_figure(result, config.grid.resolution, out_dir / name,
@@ -381,8 +385,6 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                 try:
                     _note_unstamped(msg, topic, t_ns, unstamped)
                     scan = scan_from_msg(msg)
-                    if mount.mirrored:
-                        scan = scan.mirrored()
                 except (ScanError, ValueError, TypeError, AttributeError) as exc:
                     reason = f'malformed scan: {_generic(str(exc))}'
                     if not skipped[reason]:
@@ -391,9 +393,10 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
                     continue
                 want = figure_scan is not None and scan_index == figure_scan
                 if want:
-                    state['figure'] = scan
-                if recorder is not None:
-                    recorder.scan_message(scan_index, msg, scan)
+                    state['figure'] = scan.stamp
+                if recorder is not None:     # the scan as the pipeline sees it (turned over)
+                    recorder.scan_message(scan_index, msg,
+                                          scan.mirrored() if upside_down else scan)
                     want = want or recorder.wants_grids(scan_index)
                 process(pipeline.add_scan(scan, arrival, want))
             process(pipeline.flush())
@@ -426,7 +429,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
         'ego_motion_sources': dict(pipeline.sources),
         'scanner_mount': {'x': config.ego_motion.mount_x, 'y': config.ego_motion.mount_y,
                           'yaw': config.ego_motion.mount_yaw, 'source': mount.source,
-                          'mirrored': mount.mirrored},
+                          'mirrored': upside_down},
         'odom_wait': odom_wait,
         'timing': {
             'wall_s': wall,
