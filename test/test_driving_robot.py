@@ -241,3 +241,35 @@ def test_the_real_robot_with_wheel_odometry_on_tf_confirms_nothing_but_the_rear_
     assert summary['scanner_mount']['source'] == '/tf_static'
     assert summary['scanner_mount']['yaw'] == pytest.approx(math.pi / 4)
     assert summary['ego_motion_sources'].get('icp', 0) >= 0.9 * summary['scans']
+
+
+@pytest.mark.skipif(not NEGATIVE.exists(),
+                    reason='negative_2.bag is not under $LASER_TRACKER_DATA (README.md, "Data")')
+def test_the_real_robots_left_and_right_scanners_on_one_topic():
+    """negative_2's left and right scanners published on one topic: the pipeline follows the
+    left one (the first scan's frame), and poses and tracks are those of the left scanner
+    alone (none confirmed). Taken for one scanner (one frame name for both), the two views
+    matched against each other confirm tracks in the empty building."""
+    import dataclasses
+
+    left = [s for s in read_scans(NEGATIVE, '/left_scan') if hasattr(s, 'ranges')]
+    right = [s for s in read_scans(NEGATIVE, '/right_scan') if hasattr(s, 'ranges')]
+    both = sorted(left + right, key=lambda s: s.stamp)
+    assert both[0].frame_id == left[0].frame_id != right[0].frame_id
+
+    def run(scans):
+        pipeline, poses, confirmed = Pipeline(), [], 0
+        for scan in scans:
+            result = pipeline.step(scan)
+            if result.skipped is None:
+                poses.append(result.pose)
+            confirmed += len(result.newly_confirmed)
+        return np.array(poses), confirmed, pipeline
+
+    alone, alone_confirmed, _ = run(left)
+    followed, followed_confirmed, pipeline = run(both)
+    assert alone_confirmed == followed_confirmed == 0
+    np.testing.assert_array_equal(followed, alone)
+    assert pipeline.events()['ego_motion']['scan of another scanner skipped'] == len(right)
+    one_name = [dataclasses.replace(s, frame_id=left[0].frame_id) for s in both]
+    assert run(one_name)[1] >= 3
