@@ -9,7 +9,8 @@ trusted; ``status_topic``, '' to trust every pose, e.g. when another localisatio
 stamped exactly as the scan.
 
 The node is convert -> ``core.stages.Detector`` -> convert; the stage owns the stream rules
-(time going backwards, duplicates, gaps, a restarted pose chain) and the pose gate.
+(time going backwards, duplicates, gaps, a restarted pose chain) and the pose gate, and turns
+a scan over when its pose says so (an upside-down scanner, ``ego_motion/status``).
 Parameters: ``grid.*``, ``difference.*``, ``blobs.*``, ``segments.*``, ``person_detector.*``
 (changeable at run time) and ``status_topic`` (read-only). A person-detector model that
 cannot be loaded is a warning: the motion method keeps running.

@@ -8,8 +8,12 @@ publishes, stamped exactly as the scan:
   frame = the scan's frame) with its covariance, and the twist (motion since the previous
   scan per second, scanner frame) with its covariance: what Odometry means everywhere;
 * ``ego_motion/status`` (diagnostic_msgs/DiagnosticArray, reliable): whether detection may
-  trust the pose (source, motion variances, unmatched fraction, restart flag; layout in
-  ``conversions.ego_motion_to_msgs`` and README.md).
+  trust the pose (source, motion variances, unmatched fraction, restart flag), the robot's
+  body in the scan and whether the scan was turned over (``ego_motion.mount_upside_down``);
+  layout in ``conversions.ego_motion_to_msgs`` and README.md.
+
+One scanner per node: scans of another frame on the topic are skipped (the stage follows the
+first scan's frame; see ``core.stages.EgoMotion``).
 
 The node is convert -> ``core.stages.EgoMotion`` -> convert: the stage holds a scan until
 the odometry covering it has arrived (at most ``odom_wait`` s of this node's clock; when
