@@ -277,3 +277,36 @@ def test_tracks_carry_kind_moving_and_covariance(graph):
     xx, xy, yy = extra['covariance']
     assert xx > 0 and yy > 0 and xx * yy >= xy * xy
     assert {'weight', 'confirmed', 'samples'} <= set(extra)
+
+
+def test_two_pipelines_in_one_namespace_are_told_apart_from_one(ros_context):
+    """Two tracking nodes publishing in one namespace (a pipeline per scanner without a
+    namespace each): each says once that another node publishes on its outputs; in a
+    namespace each, they say nothing."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    from laser_tracker.nodes.tracking import TrackingNode
+
+    nodes = [TrackingNode(context=ros_context), TrackingNode(context=ros_context),
+             TrackingNode(context=ros_context, namespace='/left'),
+             TrackingNode(context=ros_context, namespace='/right')]
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        outputs = {'/tracks', '/hypotheses', '/tracks/markers'}
+
+        def checked():
+            for node in nodes:
+                node.output_watch.check()
+            # the namespaced nodes have discovered the others' outputs too
+            return all(n.output_watch.warned == outputs for n in nodes[:2]) \
+                and nodes[2].count_publishers('/right/tracks') == 1 \
+                and nodes[3].count_publishers('/tracks') == 2
+
+        spin_until(executor, checked, 10.0)
+        assert not nodes[2].output_watch.warned and not nodes[3].output_watch.warned
+    finally:
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()

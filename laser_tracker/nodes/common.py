@@ -11,7 +11,8 @@ and no-scan messages.
   the ROS arguments are checked before ``rclpy.init`` (:func:`check_ros_arguments`: parameter
   files, ``-p`` and ``-r`` rules, log levels), and whatever rcl or a node constructor still
   refuses is caught and said in one line.
-* :func:`announce` logs a node's start-up line (resolved topics, frames); :class:`ScanWatch`
+* :func:`announce` logs a node's start-up line (resolved topics, frames) and starts its
+  :class:`OutputWatch` (another node publishing on one of its outputs); :class:`ScanWatch`
   warns, rarely, when no scan arrives.
 * :func:`guarded` wraps a subscription callback so that no message can kill a node: anything
   a publisher on the same topic can send that the conversions or the stage cannot use is a
@@ -46,7 +47,10 @@ ODOMETRY_IN = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
 STOP_TIMEOUT = 1.5   # s: cleanup after a stop request never takes longer than this
 WARNING_PERIOD = 5.0  # s between two warnings of the same kind from one node
 NO_SCAN_WARNING = 5.0  # s without a scan before ScanWatch warns (then 10, 20, 40, ... s)
+OUTPUT_CHECK_PERIOD = 5.0  # s between two looks for other publishers on a node's outputs
 ROS_OWN_TOPICS = ('/rosout', '/parameter_events')
+#: Topics that many nodes publish by design.
+SHARED_TOPICS = ROS_OWN_TOPICS + ('/diagnostics',)
 LOG_LEVELS = ('DEBUG', 'INFO', 'WARN', 'ERROR', 'FATAL', 'UNSET')
 
 
@@ -84,9 +88,38 @@ def topics_line(node) -> str:
 
 
 def announce(node, frames: str) -> None:
-    """The start-up line: the node's resolved topics and its frames."""
+    """The start-up line: the node's resolved topics and its frames; its outputs watched
+    from now on (:class:`OutputWatch`)."""
     node.get_logger().info(f'started as {node.get_fully_qualified_name()}: '
                            f'{topics_line(node)}; {frames}')
+    node.output_watch = OutputWatch(node)
+
+
+class OutputWatch:
+    """Warns, once per topic, when another node publishes on one of this node's outputs
+    (checked every :data:`OUTPUT_CHECK_PERIOD` s of wall time): two pipelines in one
+    namespace, one per scanner, would mix their poses, blobs or tracks, and every subscriber
+    would take them for one stream."""
+
+    def __init__(self, node):
+        self.node = node
+        self.warned: set[str] = set()
+        node.create_timer(OUTPUT_CHECK_PERIOD, self.check,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def check(self) -> None:
+        own = Counter(p.topic_name for p in self.node.publishers)
+        for topic, count in own.items():
+            if topic in SHARED_TOPICS or topic in self.warned:
+                continue
+            others = self.node.count_publishers(topic) - count
+            if others > 0:
+                self.warned.add(topic)
+                self.node.get_logger().warning(
+                    f'{others} other publisher(s) on {topic}, an output of this node: its '
+                    'subscribers get both streams mixed. Two pipelines (one per scanner) need '
+                    'a namespace each (-r __ns:=/left); `ros2 topic info -v '
+                    f'{topic}` lists the publishers')
 
 
 class ScanWatch:
