@@ -195,7 +195,7 @@ class Pipeline:
                           source=pose.source, detections=det.detections,
                           hypotheses=frame.hypotheses,
                           newly_confirmed=frame.newly_confirmed, created=frame.created,
-                          detection=det, scan=det.scan if pose.mirrored else scan, ego=pose)
+                          detection=det, scan=det.scan, ego=pose)
 
     def _skipped(self, scan: Scan, reason: str) -> StepResult:
         empty = Detections(float(scan.stamp), np.full(3, np.nan))
