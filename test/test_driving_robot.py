@@ -249,7 +249,8 @@ def test_the_real_robots_left_and_right_scanners_on_one_topic():
     """negative_2's left and right scanners published on one topic: the pipeline follows the
     left one (the first scan's frame), and poses and tracks are those of the left scanner
     alone (none confirmed). Taken for one scanner (one frame name for both), the two views
-    matched against each other confirm tracks in the empty building."""
+    matched against each other confirm tracks in the empty building (every scan of that
+    15 Hz stream used: thinned to 7.5 Hz, detection would see mostly one of them)."""
     import dataclasses
 
     left = [s for s in read_scans(NEGATIVE, '/left_scan') if hasattr(s, 'ranges')]
@@ -257,8 +258,9 @@ def test_the_real_robots_left_and_right_scanners_on_one_topic():
     both = sorted(left + right, key=lambda s: s.stamp)
     assert both[0].frame_id == left[0].frame_id != right[0].frame_id
 
-    def run(scans):
-        pipeline, poses, confirmed = Pipeline(), [], 0
+    def run(scans, **overrides):
+        pipeline = Pipeline(parameters.pipeline_config(parameters.load([], overrides=overrides)))
+        poses, confirmed = [], 0
         for scan in scans:
             result = pipeline.step(scan)
             if result.skipped is None:
@@ -272,4 +274,30 @@ def test_the_real_robots_left_and_right_scanners_on_one_topic():
     np.testing.assert_array_equal(followed, alone)
     assert pipeline.events()['ego_motion']['scan of another scanner skipped'] == len(right)
     one_name = [dataclasses.replace(s, frame_id=left[0].frame_id) for s in both]
-    assert run(one_name)[1] >= 3
+    assert run(one_name, **{'difference.max_scan_rate': 0.0})[1] >= 3
+
+
+def test_a_40_hz_scanner_confirms_no_false_track_once_thinned(tmp_path):
+    """The same drive seen by a 40 Hz scanner (every head revolution delivered): the
+    method's counts of scans, set at 4 to 10 Hz, confirm what flickers when fed every scan
+    (difference.max_scan_rate 0); thinned to 10 scans a second nothing false is confirmed
+    and the people are still tracked. The evaluation scores the scans the replay used."""
+    from laser_tracker.tools.bench_sims import simulate_at_rate
+
+    bag = simulate_at_rate(NAME, 40.0, tmp_path / 'driving_40hz')
+    results = {}
+    for rate in (10.0, 0.0):
+        out = tmp_path / f'replay_{rate:g}'
+        config = parameters.load([], overrides={'difference.max_scan_rate': rate})
+        summary = replay_bag(bag, config=config, out_dir=out, progress=False)
+        results[rate] = (summary, evaluate_replay(out, bag).result)
+    thinned, every = results[10.0], results[0.0]
+    assert thinned[0]['scans_skipped'] == {
+        'detection: thinned to difference.max_scan_rate': pytest.approx(1200, abs=10)}
+    assert not every[0]['scans_skipped']
+    assert every[1]['false_detections'] >= 3
+    assert thinned[1]['false_detections'] == 0
+    mot = thinned[1]['clear_mot']['detectable']
+    assert thinned[1]['ground_truth_frames_not_replayed'] == pytest.approx(1200, abs=10)
+    assert mot['num_objects'] < 500                  # the 400 scans used, not all 1,600
+    assert mot['mota'] >= 0.5

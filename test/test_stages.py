@@ -323,3 +323,35 @@ def test_scans_whose_stamp_is_never_set_are_named_as_such(caplog):
         assert stage.update(ring_scan(0.0)) is None
     assert stage.skipped == 'duplicate stamp'
     assert 'never sets it' in caplog.text
+
+
+def test_a_40_hz_scanner_is_thinned_to_ten_scans_a_second_and_still_sees_a_walker(caplog):
+    """Detection uses every fourth scan of a 40 Hz scanner (difference.max_scan_rate), says
+    so once (not per scan), and the walker shows as blobs on the scans it uses; with the
+    rule off every scan is used."""
+    import logging
+    from dataclasses import replace
+
+    from laser_tracker.core.blobs import BlobConfig
+    from laser_tracker.core.grid import GridConfig
+
+    det = Detector()
+    used, blobs_seen = [], 0
+    with caplog.at_level(logging.INFO, logger='laser_tracker.core.stages'):
+        for k in range(80):                       # 2 s; a post walking at 1 m/s
+            t = 1.0 + k / 40.0
+            out = det.update(ring_scan(t, -2.0 + (t - 1.0)), pose(t))
+            if out is None:
+                assert det.skipped == 'thinned to difference.max_scan_rate'
+                continue
+            used.append(k)
+            blobs_seen += out.detections.blobs.count > 0
+    assert np.diff(used[3:]).tolist() == [4] * (len(used) - 4)
+    assert det.events.counts['scans thinned'] == 80 - len(used)
+    assert blobs_seen >= len(used) - 6                 # the walker, once there is history
+    assert caplog.text.count('scans thinned') <= 3     # the 1st and 10th (and a 100th)
+    assert '40.0 Hz' in caplog.text
+    det.reconfigure(GridConfig(), replace(det.difference_config, max_scan_rate=0.0),
+                    BlobConfig())
+    assert all(det.update(ring_scan(3.0 + k / 40.0), pose(3.0 + k / 40.0)) is not None
+               for k in range(8))

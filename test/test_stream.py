@@ -1,7 +1,9 @@
-"""Scans wait for the odometry that covers them, but never for an absent odometry stream."""
+"""Scans wait for the odometry that covers them, but never for an absent odometry stream; a
+fast scanner is thinned to the rate the method was made for."""
+import numpy as np
 import pytest
 
-from laser_tracker.core.stream import ClockOffset, OdometryWait
+from laser_tracker.core.stream import ClockOffset, OdometryWait, ScanThinning
 
 
 def test_scan_is_held_until_odometry_stamped_after_it_arrives():
@@ -72,3 +74,43 @@ def test_a_clock_offset_that_goes_away_is_dropped():
     _feed(clocks, 10, 60.0)
     assert clocks.offset == pytest.approx(60.0, abs=0.01)
     assert _feed(clocks, 10, 0.0, start=10) == 1 and clocks.offset == 0.0
+
+
+def _used(rate_hz: float, max_rate: float, seconds: float = 4.0, jitter: float = 0.0,
+          seed: int = 0) -> list[float]:
+    """The stamps a ScanThinning at ``max_rate`` uses of a scanner at ``rate_hz``, whose
+    stamps jitter by up to ``jitter`` of its period."""
+    thinning = ScanThinning(max_rate)
+    rng = np.random.default_rng(seed)
+    n = int(seconds * rate_hz)
+    stamps = np.arange(n) / rate_hz + rng.uniform(-jitter, jitter, n) / rate_hz
+    return [t for t in stamps if thinning.use(float(t))]
+
+
+@pytest.mark.parametrize('rate_hz, every', [(15.0, 2), (20.0, 2), (25.0, 3), (30.0, 3),
+                                            (40.0, 4), (50.0, 5)])
+def test_a_fast_scanner_is_thinned_to_about_ten_scans_a_second(rate_hz, every):
+    used = _used(rate_hz, 10.0)
+    steps = np.round(np.diff(used[3:]) * rate_hz).astype(int)   # after its period is known
+    assert set(steps.tolist()) == {every}
+    assert 7.0 <= 1.0 / np.median(np.diff(used[3:])) <= 10.0 + 1e-9
+
+
+@pytest.mark.parametrize('rate_hz, jitter', [(4.3, 0.3), (5.0, 0.3), (7.5, 0.3), (10.0, 0.3),
+                                             (12.0, 0.1)])
+def test_a_scanner_up_to_four_thirds_of_the_rate_keeps_every_scan_despite_jitter(rate_hz,
+                                                                                  jitter):
+    n = int(4.0 * rate_hz)
+    assert len(_used(rate_hz, 10.0, jitter=jitter)) == n
+
+
+def test_thinning_off_and_after_a_reset_every_scan_counts():
+    assert len(_used(40.0, 0.0)) == 160
+    thinning = ScanThinning(10.0)
+    assert [k for k in range(12) if thinning.use(k / 40.0)] == [0, 1, 2, 6, 10]
+    thinning.reset()                  # a restart: the next scan is used, the period relearnt
+    assert thinning.use(12 / 40.0) and thinning.period is None
+    # a scanner that drops scans: the first one after the gap is used at once
+    thinning = ScanThinning(10.0)
+    used = [t for t in [k / 40.0 for k in range(16)] + [0.6] if thinning.use(t)]
+    assert used[-1] == 0.6 and used[-2] <= 0.375

@@ -155,6 +155,14 @@ class DifferenceConfig:
         2.0, 'A scan more than this long (s) after the previous one is not compared with the '
         'grids before the gap (the scene and the platform moved on): it starts a new '
         'history.', min=0.01, max=3600.0)
+    max_scan_rate: float = param(
+        10.0, 'Scans a second (Hz) that detection uses at most. Of a scanner faster than 4/3 '
+        'of this, a scan is used once 1/max_scan_rate less a third of the scanner\'s period '
+        'has passed since the one used last (every second scan at 15 and 20 Hz, every third at '
+        '25 and 30 Hz, every fourth at 40 Hz); the ego-motion still matches every scan. The '
+        'method counts scans (the paper\'s four samples, Eq. 3\'s gain per supporting scan, '
+        'the grids of memory), and its counts were set at 4 to 10 Hz: at 15 Hz and above they '
+        'confirm what flickers. 0 = every scan (paper).', min=0.0, max=1000.0)
     walked_out_window: float = param(
         1.0, 'A detected person has also walked (like one who walked in) when, in a scan of '
         'the last this many seconds, the person detected nearest them was at least two '

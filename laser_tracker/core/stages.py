@@ -55,7 +55,7 @@ from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig, segments_of
 from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig, without_body
 from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, ClockOffset, EventLog,
-                                       OdometryWait, StreamRules)
+                                       OdometryWait, ScanThinning, StreamRules)
 
 log = logging.getLogger(__name__)
 
@@ -334,6 +334,7 @@ class Detector:
         self.blob_config = blobs or BlobConfig()
         self.segment_config = segments or SegmentConfig()
         self.rules = StreamRules(self.difference_config.max_gap)
+        self.thinning = ScanThinning(self.difference_config.max_scan_rate)
         self.skipped: str | None = None
         self._load_person_detector(persons or PersonDetectorConfig())
         self._build()
@@ -371,6 +372,7 @@ class Detector:
         # the scanner pose (odometry frame).
         self.recent_people = np.zeros((0, 6))
         self.rules.reset()
+        self.thinning.reset()
 
     @property
     def previous(self):
@@ -398,6 +400,7 @@ class Detector:
                    != (old.static_time, old.static_occupied, old.static_max_step))
         self.grid_config, self.difference_config, self.blob_config = grid, difference, blobs
         self.rules.max_gap = difference.max_gap
+        self.thinning.max_rate = difference.max_scan_rate
         if rebuild:
             self.events.note('history dropped', 'grid parameters changed', logging.INFO)
             self._build()
@@ -427,6 +430,12 @@ class Detector:
         elif pose.quality.restarted and verdict != FIRST:
             self.events.note('history dropped', 'the ego-motion pose chain restarted')
             self.reset()
+        if not self.thinning.use(scan.stamp):
+            self.skipped = 'thinned to difference.max_scan_rate'
+            self.events.note('scans thinned', f'a scanner at {1.0 / self.thinning.period:.1f} '
+                             f'Hz: detection uses at most {self.thinning.max_rate:g} scans a '
+                             'second (difference.max_scan_rate)', logging.INFO)
+            return None
         self.rules.accept(scan.stamp)
         measured = scan
         view = View.of_scan(scan)           # the robot's body hides what lies behind it

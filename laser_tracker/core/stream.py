@@ -15,6 +15,9 @@ offline replay and the ROS nodes behave identically:
 Everything unusual is counted and logged through an :class:`EventLog`: the first occurrence
 of a reason at once, then at the 10th, 100th, ... (no floods), and all counts for summaries.
 
+A scanner faster than the method's scan counts were set for is thinned by
+:class:`ScanThinning`.
+
 Also here: :class:`OdometryWait` (a scan waits for the odometry that covers it, paper Sec. 3:
 odometry arrives late and jittered), :class:`ClockOffset` (odometry stamped by another clock
 than the scans) and :class:`StampPairer` (joins streams that carry the same stamps, e.g. a
@@ -98,6 +101,47 @@ class StreamRules:
 
     def accept(self, stamp: float) -> None:
         self.last = float(stamp)
+
+
+class ScanThinning:
+    """Which scans of a fast scanner a stage uses: about ``max_rate`` a second at most.
+
+    The scanner's period T is the median of its last 15 intervals. A scanner faster than
+    4/3 of ``max_rate`` (T below three quarters of 1 / ``max_rate``) has a scan used once
+    1 / ``max_rate`` less T / 3 has passed since the one used last: at 10 Hz, every second
+    scan of a 15 or 20 Hz scanner, every third at 25 or 30 Hz, every fourth at 40 Hz. A
+    slower scanner, with whatever jitter its stamps have, uses every scan, and so does
+    ``max_rate`` 0. Stamps come screened (:class:`StreamRules`): increasing."""
+
+    def __init__(self, max_rate: float):
+        self.max_rate = float(max_rate)
+        self.reset()
+
+    def reset(self) -> None:
+        self.intervals: deque[float] = deque(maxlen=15)
+        self.last: float | None = None       # the latest scan seen
+        self.used: float | None = None       # the latest scan used
+
+    @property
+    def period(self) -> float | None:
+        """The scanner's median period (s), once three intervals are known."""
+        return statistics.median(self.intervals) if len(self.intervals) >= 3 else None
+
+    def thinning(self) -> bool:
+        """Whether the scanner is fast enough to be thinned."""
+        period = self.period
+        return self.max_rate > 0.0 and period is not None and period < 0.75 / self.max_rate
+
+    def use(self, stamp: float) -> bool:
+        """Whether the scan stamped ``stamp`` is used."""
+        if self.last is not None and stamp > self.last:
+            self.intervals.append(stamp - self.last)
+        self.last = stamp
+        if self.used is not None and self.thinning() and \
+                stamp - self.used < 1.0 / self.max_rate - self.period / 3.0:
+            return False
+        self.used = stamp
+        return True
 
 
 class OdometryWait(Generic[T]):

@@ -6,6 +6,10 @@ looping, with odometry at twice that rate) and listens on ``tracks``. Latency is
 from publishing a scan to receiving the ``tracks`` message with its stamp; a scan whose
 tracks never arrive (within 1 s) is dropped. Prints p50 / p99 / max latency and the drops.
 
+Detection uses every scan (``difference.max_scan_rate: 0``, from a parameter file the
+benchmark writes): the graph under its whole load, not the 10 scans a second it would thin
+a 75 Hz scanner to.
+
 ``--one-process`` runs the same nodes in one process instead (``laser_tracker_all``, which
 also starts ``active_head``): what the three processes' hops over DDS cost.
 ``--code DIR`` runs the nodes from another checkout of the package (to compare versions).
@@ -16,6 +20,7 @@ import argparse
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -55,7 +60,13 @@ def run(args: argparse.Namespace) -> int:
     if args.code:
         env['PYTHONPATH'] = str(Path(args.code).resolve())
     modules = ('composed',) if args.one_process else NODES
-    procs = [subprocess.Popen([sys.executable, '-m', f'laser_tracker.nodes.{n}'], env=env,
+    every_scan = tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='bench_graph_')
+    every_scan.write('detection:\n  ros__parameters:\n    difference:\n'
+                     '      max_scan_rate: 0.0\n')
+    every_scan.flush()
+    procs = [subprocess.Popen([sys.executable, '-m', f'laser_tracker.nodes.{n}']
+                              + (['--ros-args', '--params-file', every_scan.name]
+                                 if n in ('composed', 'detection') else []), env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
              for n in modules]
     rclpy.init()
@@ -116,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+        every_scan.close()
     latency = np.array([received[k] - t for k, t in sent.items()
                         if k in received and received[k] - t < 1.0]) * 1e3
     drops = len(sent) - latency.size

@@ -6,6 +6,10 @@ with ``--config``), scores each with ``laser-tracker evaluate`` and prints one r
 recording and mode (``--markdown`` for README.md, ``--json`` for programs): straight paths
 detected, people detected among those passing, false detections, CLEAR MOT over the objects
 in view (MOTA, false-positive frames, ID switches) and the median position error.
+
+``--scan-rates 10 15 20 40`` also simulates the two scenarios of a Hokuyo-class scanner
+(``driving_past_people``, ``hokuyo_corridor_lobby``) as scanners of those rates (the head
+turning that fast, every revolution delivered) and scores them as rows ``NAME@RATEHz``.
 """
 from __future__ import annotations
 
@@ -30,16 +34,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--json', metavar='OUT', help='write the figures as JSON')
     parser.add_argument('--markdown', action='store_true', help='print a Markdown table')
     parser.add_argument('--jobs', type=int, default=1, help='replays run in parallel')
+    parser.add_argument('--scan-rates', nargs='+', type=float, default=[], metavar='HZ',
+                        help='also the Hokuyo scenarios (%s) simulated as scanners of these '
+                        'rates, rows NAME@RATEHz' % ', '.join(HOKUYO_SCENARIOS))
 
 
-def score(name: str, mode: str, files) -> dict:
-    """Replay bundled recording ``name`` in ``mode`` and score it."""
+#: The scenarios of a Hokuyo-class scanner, whose head rate ``--scan-rates`` changes.
+HOKUYO_SCENARIOS = ('driving_past_people', 'hokuyo_corridor_lobby')
+
+
+def simulate_at_rate(name: str, rate_hz: float, out: Path) -> Path:
+    """The scenario ``name`` as a scanner of ``rate_hz`` (its head turning that fast, every
+    revolution delivered), written to ``out``."""
+    import dataclasses
+
+    from laser_tracker.tools.sim.recorder import record
+    from laser_tracker.tools.sim.scenarios import build
+    from laser_tracker.tools.simulate import write_recording
+
+    scenario = build(name)
+    lidar = dataclasses.replace(scenario.lidar, revolution_hz=float(rate_hz), skip=0)
+    write_recording(record(dataclasses.replace(scenario, lidar=lidar)), out)
+    return out
+
+
+def score(name: str, mode: str, files, bag: Path | None = None) -> dict:
+    """Replay bundled recording ``name`` (or the recording ``bag``) in ``mode`` and score
+    it."""
     from laser_tracker.tools.bag import resolve_bag
     from laser_tracker.tools.evaluate import evaluate_replay
     from laser_tracker.tools.replay import replay_bag
 
     logging.basicConfig(level=logging.ERROR)
-    bag = resolve_bag(name)
+    bag = bag or resolve_bag(name)
     with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_sims_') as tmp:
         replay_bag(bag, config=mode_parameters(mode, files), out_dir=Path(tmp), progress=False)
         r = evaluate_replay(Path(tmp), bag).result
@@ -55,8 +82,12 @@ def score(name: str, mode: str, files) -> dict:
 
 
 def _job(job):
-    name, mode, files = job
-    return name, mode, score(name, mode, files)
+    name, mode, files, bag = job
+    return name, mode, score(name, mode, files, bag)
+
+
+def _simulate(job) -> Path:
+    return simulate_at_rate(*job)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,14 +99,20 @@ def run(args: argparse.Namespace) -> int:
     if args.config:
         mode_parameters('custom', args.config)      # a bad file fails before any work
     names = args.only or bundled_bags()
-    jobs = [(name, mode, args.config) for name in names for mode in modes]
+    jobs = [(name, mode, args.config, None) for name in names for mode in modes]
     results: dict = {}
-    done = ProcessPoolExecutor(args.jobs).map(_job, jobs) if args.jobs > 1 else map(_job, jobs)
-    for name, mode, row in done:
-        results.setdefault(name, {})[mode] = row
-        if not args.markdown:
-            print(f'{name:<32} {mode:<9} ' + ', '.join(f'{k} {v}' for k, v in row.items()),
-                  flush=True)
+    with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_rates_') as tmp, \
+            ProcessPoolExecutor(max(1, args.jobs)) as pool:
+        fast = [(name, rate, Path(tmp) / f'{name}@{rate:g}Hz')
+                for name in HOKUYO_SCENARIOS for rate in args.scan_rates]
+        for (name, rate, _), bag in zip(fast, pool.map(_simulate, fast)):
+            jobs += [(f'{name}@{rate:g}Hz', mode, args.config, bag) for mode in modes]
+        done = pool.map(_job, jobs) if args.jobs > 1 else map(_job, jobs)
+        for name, mode, row in done:
+            results.setdefault(name, {})[mode] = row
+            if not args.markdown:
+                print(f'{name:<32} {mode:<9} ' + ', '.join(f'{k} {v}' for k, v in row.items()),
+                      flush=True)
     if args.markdown:
         print(markdown_table(results, modes))
     if args.json:

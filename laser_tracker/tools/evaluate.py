@@ -236,7 +236,10 @@ def evaluate_replay(folder: str | Path, bag: str | Path,
     replay = replay or read_replay(folder)
     bag = resolve_bag(bag)
     truth, true_stamps, true_poses = load_truth(bag)
-    tol = config.stamp_tolerance * median_period(replay.ego_stamps)
+    # the nearer of the two periods: a replay may use fewer scans than the recording has
+    # (detection.max_rate), or the truth may have fewer frames than scans
+    tol = config.stamp_tolerance * min(median_period(replay.ego_stamps),
+                                       median_period(truth.stamps))
     tracks = tracks_to_map(replay.tracks, replay.ego_stamps, replay.ego_poses,
                            true_stamps, true_poses, tol)
     replayed = match_stamps(truth.stamps, np.sort(replay.ego_stamps), tol) >= 0
