@@ -96,6 +96,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'ego_motion.speed_check_jitter': 0.0,
         'self_mask.learn': False,          # nothing of the robot's body is masked
         'self_mask.beam_width': 0.0,       # nor mixed returns at nearer edges
+        'self_mask.noise_sigmas': 0.0,     # the tolerance alone
     },
     'detection': {
         'grid.free_erosion': 0,            # free space only from each beam itself

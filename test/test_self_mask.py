@@ -227,3 +227,46 @@ def test_the_spur_beside_the_real_robots_body_edge_is_masked():
     masked = SelfMask(SelfMaskConfig(learn=False)).apply(scan)[1]
     assert masked[spur].all()
     assert not masked[edge + 30:edge + 60].any()
+
+
+def _noisy(scan: Scan, sigma: float, rng) -> Scan:
+    import dataclasses
+    return dataclasses.replace(scan, ranges=scan.ranges + rng.normal(0.0, sigma, N))
+
+
+@pytest.mark.parametrize('sigma', [0.005, 0.02, 0.05])
+def test_the_range_noise_near_the_robot_is_measured_from_one_scan(sigma):
+    """The second differences of consecutive returns within reach give the noise; the edges
+    between surfaces (here the body's against the far posts) do not move it."""
+    from laser_tracker.core.self_mask import range_noise
+    rng = np.random.default_rng(1)
+    ranges = np.full(N, np.inf)
+    ranges[:60] = 0.4 + 0.2 * np.sin(np.linspace(0, 2, 60))     # a curved body part
+    ranges[60:120] = 0.8                                         # a second one, an edge apart
+    noisy = ranges + rng.normal(0.0, sigma, N)
+    assert range_noise(noisy, 0.05, 1.0) == pytest.approx(sigma, rel=0.25)
+    assert range_noise(noisy[:10], 0.05, 1.0) is None            # too few returns near
+    assert range_noise(np.full(N, np.nan), 0.05, 1.0) is None
+
+
+def test_a_noisy_scanners_body_is_learnt_and_stays_masked():
+    """With 5 cm of range noise (a low-cost scanner) the body's returns jump by more than
+    the 5 cm tolerance from scan to scan: the tolerance follows the measured noise (three
+    sigma), so the body is learnt and masked, and a person beyond it is not."""
+    from laser_tracker.core import self_mask
+    rng = np.random.default_rng(2)
+    mask = SelfMask(SelfMaskConfig(travel=2.0))
+    for k in range(40):
+        mask.learn(_noisy(scan_at(k), 0.05, rng), (0.1, 0.0, 0.0))
+    assert mask.range_noise == pytest.approx(0.05, rel=0.3)
+    assert mask.settings[self_mask._TOLERANCE] == pytest.approx(3 * mask.range_noise)
+    masked = [mask.mask(_noisy(scan_at(40 + k), 0.05, rng))[BODY].mean() for k in range(10)]
+    assert np.mean(masked) > 0.95
+    person = {5: 0.9, 6: 0.9, 7: 0.92}                   # 0.5 m beyond the body
+    assert not mask.mask(scan_at(50, person=person))[[5, 6, 7]].any()
+    # with the tolerance held at 5 cm the same body is never learnt
+    held = SelfMask(SelfMaskConfig(travel=2.0, noise_sigmas=0.0))
+    rng = np.random.default_rng(2)
+    for k in range(40):
+        held.learn(_noisy(scan_at(k), 0.05, rng), (0.1, 0.0, 0.0))
+    assert held.mask(_noisy(scan_at(40), 0.05, rng))[BODY].mean() < 0.5

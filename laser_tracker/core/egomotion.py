@@ -1485,6 +1485,7 @@ class EgoMotionEstimator:
         mask = self.self_mask
         if mask is not None:
             mask.fit(scan)
+            mask.follow_noise(scan)
             mask_settings, mask_state, masked = mask.settings, mask.state, np.empty(n)
         else:
             mask_settings, mask_state, masked = _NO_MASK

@@ -43,8 +43,8 @@ from laser_tracker.core.person_detector import PersonDetectorConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import SegmentConfig
 from laser_tracker.core.self_mask import SelfMaskConfig
-from laser_tracker.core.stages import (Detection, Detector, EgoMotion, StampedPose, Tracker,
-                                      warm_up_once, warm_up_scene)
+from laser_tracker.core.stages import (THINNED, Detection, Detector, EgoMotion, StampedPose,
+                                      Tracker, warm_up_once, warm_up_scene)
 from laser_tracker.core.tracking.state import Hypotheses
 
 
@@ -123,6 +123,12 @@ class StepResult:
     skipped: str | None = None
     scan: Scan | None = field(default=None, repr=False)
     ego: StampedPose | None = field(default=None, repr=False)
+
+    @property
+    def thinned(self) -> bool:
+        """Left out by detection as a scan of a fast scanner (``difference.max_scan_rate``):
+        its pose was estimated, nothing else."""
+        return self.skipped == f'detection: {THINNED}'
 
 
 STAGES = ('ego_motion', 'grid', 'difference', 'blobs', 'persons', 'tracking')

@@ -25,7 +25,13 @@ scan match is pulled towards standing still by the body it has not learnt yet: t
 matches itself), else an accepted match; a motion guessed while a standing robot's matches
 are refused would make anything standing in front of it look like its body.
 
-The mask of a beam is a range: returns up to it (plus ``tolerance``) are the body; a return
+**The scanner's range noise** (:func:`range_noise`). "Keeps its range" and the mask's margin
+beyond the body hold within ``tolerance``, or within ``noise_sigmas`` times the range noise
+measured near the robot when that is larger: the body of a robot with a noisy scanner (a few
+centimetres, as low-cost 360 deg scanners have) jitters by that much from scan to scan and
+would otherwise never keep its range, nor stay within the mask once learnt.
+
+The mask of a beam is a range: returns up to it (plus the tolerance) are the body; a return
 beyond it is the world seen past the body, so a person standing next to the robot is never
 hidden. A learnt range also masks the beams within ``EDGE_BEAMS`` of it (a body part's edge
 shifts by a beam or two). A beam learnt as body that keeps seeing only farther returns while the world moves
@@ -69,6 +75,29 @@ EDGE_BEAMS = 3
 #: :func:`mixed_returns`: well above the range noise of these scanners (1-3 cm) and below
 #: the gap between a person and the wall behind them.
 EDGE_JUMP = 0.3
+#: The weight of one scan's measurement of the range noise in its running mean.
+NOISE_WEIGHT = 0.1
+#: Triples of consecutive returns within reach that one scan needs to measure the noise.
+NOISE_MIN_TRIPLES = 10
+
+
+def range_noise(ranges: np.ndarray, range_min: float, reach: float) -> float | None:
+    """The range noise (m, one sigma) of one scan's returns within ``reach``, or None with
+    fewer than ``NOISE_MIN_TRIPLES`` triples of consecutive returns there.
+
+    For three consecutive returns on one surface, r[i-1] - 2 r[i] + r[i+1] is the noise
+    alone (the surface's own curvature over two beam spacings is far below it) with six
+    times its variance; the median of its magnitude, which the edges between surfaces do
+    not move, is 0.6745 sqrt(6) sigma."""
+    r = np.asarray(ranges, dtype=float)
+    with np.errstate(invalid='ignore'):
+        near = (r >= range_min) & (r < reach)          # NaN and inf: False
+    triple = near[:-2] & near[1:-1] & near[2:]
+    if np.count_nonzero(triple) < NOISE_MIN_TRIPLES:
+        return None
+    with np.errstate(invalid='ignore'):                # inf - inf outside the triples
+        second = np.abs(r[:-2] - 2.0 * r[1:-1] + r[2:])[triple]
+    return float(np.median(second)) / (0.6745 * math.sqrt(6.0))
 
 
 @dataclass(frozen=True)
@@ -88,7 +117,12 @@ class SelfMaskConfig:
         min=0.1, max=100.0)
     tolerance: float = param(
         0.05, 'Range tolerance (m) of "keeps its range", and margin of the mask beyond the '
-        'body\'s learnt range (range noise of the scanner, a few sigma).', min=0.0, max=1.0)
+        'body\'s learnt range, at least (see noise_sigmas).', min=0.0, max=1.0)
+    noise_sigmas: float = param(
+        3.0, 'The tolerance is at least this many times the range noise measured near the '
+        'robot (one sigma, from the second differences of consecutive returns within '
+        'reach): the body of a robot with a noisy scanner jitters by that much from scan to '
+        'scan (3: 99.7 % of its returns). 0 = the tolerance alone.', min=0.0, max=10.0)
     footprint: str = param(
         '', 'The robot\'s footprint in its base frame, as nav2 writes it: '
         '"[[x1, y1], [x2, y2], [x3, y3], ...]" (m, at least 3 corners); returns inside it '
@@ -184,6 +218,9 @@ class SelfMask:
             c.tolerance, PROVISIONAL_TRAVEL, c.beam_width, EDGE_JUMP, c.learn, c.reach,
             c.travel, FORGET_FACTOR * c.travel, SURFACE_JUMP)
         self.reset()
+        #: the scanner's range noise near the robot (m, one sigma; running mean over scans,
+        #: :meth:`follow_noise`), None until measured
+        self.range_noise: float | None = None
         #: what :meth:`apply` and :meth:`left_out` (or the estimator) masked in the last scan:
         #: per beam, returns up to this range (NaN: none); ``applied`` is the same, None when
         #: it masked nothing
@@ -231,6 +268,23 @@ class SelfMask:
         self.state = np.zeros((RANGES + 1, 0))
 
     # ------------------------------------------------------------------ per scan
+    def follow_noise(self, scan: Scan) -> None:
+        """Measures the range noise of ``scan``'s returns within ``reach`` (the running mean
+        :attr:`range_noise`) and sets the tolerance the kernels use: ``tolerance``, or
+        ``noise_sigmas`` times the noise when that is larger."""
+        c = self.config
+        noise = range_noise(scan.ranges, max(scan.range_min, 1e-6), c.reach)
+        if noise is not None:
+            previous = self.range_noise
+            self.range_noise = noise if previous is None else \
+                previous + NOISE_WEIGHT * (noise - previous)
+        tolerance = c.tolerance
+        if self.range_noise is not None:
+            tolerance = max(tolerance, c.noise_sigmas * self.range_noise)
+        if tolerance != self.settings[_TOLERANCE]:
+            self.settings[_TOLERANCE] = tolerance
+            self.settings[_STALE] = 1.0               # the mask's margin changed
+
     def mask(self, scan: Scan) -> np.ndarray:
         """Beams of ``scan`` whose return is the body."""
         self.fit(scan)
@@ -267,7 +321,7 @@ class SelfMask:
         the match towards standing still before it is learnt."""
         self.fit(scan)
         with np.errstate(invalid='ignore'):
-            kept = np.abs(scan.ranges - self.anchor) <= self.config.tolerance
+            kept = np.abs(scan.ranges - self.anchor) <= self.settings[_TOLERANCE]
         return kept & (self.kept >= PROVISIONAL_TRAVEL) & np.isnan(self.body)
 
     def left_out(self, scan: Scan) -> np.ndarray:
@@ -287,6 +341,7 @@ class SelfMask:
         """Learn from ``scan`` (as received) and the scanner's motion since the previous
         scan (its pose in the previous scanner frame): one kernel call, :func:`learn_scan`."""
         self.fit(scan)
+        self.follow_noise(scan)
         x, y, th = (float(v) for v in motion)
         _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment),
                                  scan.n_beams)

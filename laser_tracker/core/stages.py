@@ -59,6 +59,9 @@ from laser_tracker.core.stream import (BACKWARDS, FIRST, GAP, SKIPPED, ClockOffs
 
 log = logging.getLogger(__name__)
 
+#: Why detection leaves out a scan of a fast scanner (``Detector.skipped``).
+THINNED = 'thinned to difference.max_scan_rate'
+
 #: Scan points this close (m) to a motion blob do not join the static background.
 MOVER_RADIUS = 0.4
 #: Odometry and scans whose stamps, against their arrival, differ by more than this (s: the
@@ -431,7 +434,7 @@ class Detector:
             self.events.note('history dropped', 'the ego-motion pose chain restarted')
             self.reset()
         if not self.thinning.use(scan.stamp):
-            self.skipped = 'thinned to difference.max_scan_rate'
+            self.skipped = THINNED
             self.events.note('scans thinned', f'a scanner at {1.0 / self.thinning.period:.1f} '
                              f'Hz: detection uses at most {self.thinning.max_rate:g} scans a '
                              'second (difference.max_scan_rate)', logging.INFO)

@@ -9,7 +9,9 @@ in view (MOTA, false-positive frames, ID switches) and the median position error
 
 ``--scan-rates 10 15 20 40`` also simulates the two scenarios of a Hokuyo-class scanner
 (``driving_past_people``, ``hokuyo_corridor_lobby``) as scanners of those rates (the head
-turning that fast, every revolution delivered) and scores them as rows ``NAME@RATEHz``.
+turning that fast, every revolution delivered) and scores them as rows ``NAME@RATEHz``;
+``--range-noise 0.03 0.05`` as scanners of that range noise (m, one sigma), rows
+``NAME@NOISEm``.
 """
 from __future__ import annotations
 
@@ -37,15 +39,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--scan-rates', nargs='+', type=float, default=[], metavar='HZ',
                         help='also the Hokuyo scenarios (%s) simulated as scanners of these '
                         'rates, rows NAME@RATEHz' % ', '.join(HOKUYO_SCENARIOS))
+    parser.add_argument('--range-noise', nargs='+', type=float, default=[], metavar='M',
+                        help='also the Hokuyo scenarios simulated as scanners of this range '
+                        'noise (m, one sigma; bundled: 0.01 and 0.015), rows NAME@NOISEm')
 
 
 #: The scenarios of a Hokuyo-class scanner, whose head rate ``--scan-rates`` changes.
 HOKUYO_SCENARIOS = ('driving_past_people', 'hokuyo_corridor_lobby')
 
 
-def simulate_at_rate(name: str, rate_hz: float, out: Path) -> Path:
-    """The scenario ``name`` as a scanner of ``rate_hz`` (its head turning that fast, every
-    revolution delivered), written to ``out``."""
+def simulate_scanner(name: str, out: Path, rate_hz: float | None = None,
+                     noise: float | None = None) -> Path:
+    """The scenario ``name`` seen by another scanner, written to ``out``: one of ``rate_hz``
+    (its head turning that fast, every revolution delivered), or of range noise ``noise``
+    (m, one sigma)."""
     import dataclasses
 
     from laser_tracker.tools.sim.recorder import record
@@ -53,7 +60,11 @@ def simulate_at_rate(name: str, rate_hz: float, out: Path) -> Path:
     from laser_tracker.tools.simulate import write_recording
 
     scenario = build(name)
-    lidar = dataclasses.replace(scenario.lidar, revolution_hz=float(rate_hz), skip=0)
+    lidar = scenario.lidar
+    if rate_hz is not None:
+        lidar = dataclasses.replace(lidar, revolution_hz=float(rate_hz), skip=0)
+    if noise is not None:
+        lidar = dataclasses.replace(lidar, noise_sigma=float(noise))
     write_recording(record(dataclasses.replace(scenario, lidar=lidar)), out)
     return out
 
@@ -87,7 +98,8 @@ def _job(job):
 
 
 def _simulate(job) -> Path:
-    return simulate_at_rate(*job)
+    _, name, out, rate, noise = job
+    return simulate_scanner(name, out, rate, noise)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -103,10 +115,12 @@ def run(args: argparse.Namespace) -> int:
     results: dict = {}
     with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_rates_') as tmp, \
             ProcessPoolExecutor(max(1, args.jobs)) as pool:
-        fast = [(name, rate, Path(tmp) / f'{name}@{rate:g}Hz')
-                for name in HOKUYO_SCENARIOS for rate in args.scan_rates]
-        for (name, rate, _), bag in zip(fast, pool.map(_simulate, fast)):
-            jobs += [(f'{name}@{rate:g}Hz', mode, args.config, bag) for mode in modes]
+        other = [(f'{name}@{rate:g}Hz', name, Path(tmp) / f'{name}@{rate:g}Hz', rate, None)
+                 for name in HOKUYO_SCENARIOS for rate in args.scan_rates]
+        other += [(f'{name}@{noise:g}m', name, Path(tmp) / f'{name}@{noise:g}m', None, noise)
+                  for name in HOKUYO_SCENARIOS for noise in args.range_noise]
+        for (row, *_), bag in zip(other, pool.map(_simulate, other)):
+            jobs += [(row, mode, args.config, bag) for mode in modes]
         done = pool.map(_job, jobs) if args.jobs > 1 else map(_job, jobs)
         for name, mode, row in done:
             results.setdefault(name, {})[mode] = row

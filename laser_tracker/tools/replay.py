@@ -10,10 +10,11 @@ stream rules. It writes into ``--out DIR``:
 * ``tracks.csv``: ``stamp,track_id,x,y,vx,vy,weight,confirmed,kind,moving``, one row per
   hypothesis per scan, positions and velocities in the odometry frame (``confirmed`` and
   ``moving`` are 0/1);
-* ``summary.json``: scans, scans skipped with their reasons, every stage's counted events,
-  messages stamped with their receive time (no header stamp), hypotheses created, confirmed
-  tracks, ego-motion sources, the scanner mount used, timing,
-  the configuration used;
+* ``summary.json``: scans, scans skipped with their reasons, the scans of a fast scanner
+  that detection left out (``scans_thinned``, ``difference.max_scan_rate``: they have
+  poses only), every stage's counted events, messages stamped with their receive time (no
+  header stamp), hypotheses created, confirmed tracks, ego-motion sources, the scanner mount
+  used, timing, the configuration used;
 * ``tracks.png`` (paper Fig. 10) and, with ``--figure-scan K``, ``scan_K.png`` (Fig. 5 / 7).
 
 Configuration: ``--config FILE`` (repeatable, later files win) is read by the package's one
@@ -141,7 +142,10 @@ def run(args: argparse.Namespace) -> int:
                              odom_topic=args.odom_topic, progress=not args.no_progress,
                              figure_scan=args.figure_scan, record=record)
     skipped = sum(summary['scans_skipped'].values())
-    print(f'{summary["scans"]} scans replayed ({skipped} skipped) in '
+    thinned = summary['scans_thinned']
+    used = (f'; detection used {summary["scans"]} of them, difference.max_scan_rate'
+            if thinned else '')
+    print(f'{summary["scans"] + thinned} scans replayed ({skipped} skipped{used}) in '
           f'{summary["timing"]["wall_s"]:.2f} s = {summary["timing"]["scans_per_s"] or 0:.0f} '
           f'scans/s; {summary["hypotheses_created"]} hypotheses created, '
           f'{summary["confirmed_tracks"]} confirmed tracks')
@@ -309,7 +313,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
     skipped_odometry: Counter = Counter()
     damage = None
     scan_index = -1
-    state = {'scans_done': 0, 'background': None, 'figure': None}
+    state = {'scans_done': 0, 'thinned': 0, 'background': None, 'figure': None}
     wall0 = time.perf_counter()
 
     with contextlib.ExitStack() as stack:
@@ -327,6 +331,9 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
 
         def process(results) -> None:
             for result in results:
+                if result.thinned:
+                    state['thinned'] += 1
+                    continue
                 if result.skipped:
                     skipped[result.skipped] += 1
                     continue
@@ -419,6 +426,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
         'scans': scans_done,
         'scan_messages': scan_index + 1,
         'scans_skipped': dict(skipped),
+        'scans_thinned': state['thinned'],
         'odometry_messages': odometry_messages,
         'stamped_with_receive_time': dict(unstamped),
         'odometry_skipped': dict(skipped_odometry),
@@ -433,8 +441,12 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
         'odom_wait': odom_wait,
         'timing': {
             'wall_s': wall,
-            'scans_per_s': scans_done / wall if wall > 0 else None,
-            'ms_per_scan': {s: 1e3 * pipeline.times[s] / max(scans_done, 1) for s in STAGES},
+            # every scan the pipeline took in: the ego-motion's too (a thinned scan has a
+            # pose), the other stages' only those detection used
+            'scans_per_s': (scans_done + state['thinned']) / wall if wall > 0 else None,
+            'ms_per_scan': {s: 1e3 * pipeline.times[s] / max(
+                scans_done + (state['thinned'] if s == 'ego_motion' else 0), 1)
+                for s in STAGES},
         },
         'damaged': damage,
         'config': node_values,
