@@ -89,15 +89,24 @@ def range_noise(ranges: np.ndarray, range_min: float, reach: float) -> float | N
     alone (the surface's own curvature over two beam spacings is far below it) with six
     times its variance; the median of its magnitude, which the edges between surfaces do
     not move, is 0.6745 sqrt(6) sigma."""
-    r = np.asarray(ranges, dtype=float)
-    with np.errstate(invalid='ignore'):
-        near = (r >= range_min) & (r < reach)          # NaN and inf: False
-    triple = near[:-2] & near[1:-1] & near[2:]
-    if np.count_nonzero(triple) < NOISE_MIN_TRIPLES:
-        return None
-    with np.errstate(invalid='ignore'):                # inf - inf outside the triples
-        second = np.abs(r[:-2] - 2.0 * r[1:-1] + r[2:])[triple]
-    return float(np.median(second)) / (0.6745 * math.sqrt(6.0))
+    noise = _range_noise(np.asarray(ranges, dtype=np.float64), float(range_min), float(reach),
+                         NOISE_MIN_TRIPLES)
+    return None if noise != noise else float(noise)
+
+
+@jit.kernel
+def _range_noise(r, range_min, reach, least):
+    """:func:`range_noise` (NaN for None), one pass over the beams."""
+    second = np.empty(max(r.size - 2, 0))
+    n = 0
+    for i in range(1, r.size - 1):
+        a, b, c = r[i - 1], r[i], r[i + 1]
+        if range_min <= a < reach and range_min <= b < reach and range_min <= c < reach:
+            second[n] = abs(a - 2.0 * b + c)
+            n += 1
+    if n < least:
+        return np.nan
+    return np.median(second[:n]) / (0.6745 * math.sqrt(6.0))
 
 
 @dataclass(frozen=True)
@@ -598,3 +607,4 @@ def _exercise_learn() -> None:
     ranges[20:] = 5.0
     _mixed(ranges, 0.01, 10.0, 0.075, 0.03, EDGE_JUMP, np.zeros(41, np.bool_))
     without_body(ranges, state[RANGES], np.empty(41))
+    _range_noise(ranges, 0.01, 1.0, NOISE_MIN_TRIPLES)
