@@ -442,8 +442,9 @@ def ego_motion_to_msgs(factory: MessageFactory, pose):
     when the scan match was refused), ``unmatched`` (fraction of the scan's points the match
     left unexplained), ``restarted`` (the pose chain restarted here: odometry-frame history is
     void), ``trusted`` (for people reading it: whether the default gate trusts it),
-    ``reason``, ``self_mask`` (the robot's own body in this scan, :func:`encode_body`) and
-    ``mirrored`` (the pose is that of the scan turned over: the scanner hangs upside down).
+    ``reason``, ``self_mask`` (the robot's own body in this scan, :func:`encode_body`),
+    ``mirrored`` (the pose is that of the scan turned over: the scanner hangs upside down) and
+    ``range_noise`` (m, the scanner's range noise near the robot; '' before it is measured).
     """
     from laser_tracker.core.difference import DifferenceConfig, pose_trusted
 
@@ -471,7 +472,8 @@ def ego_motion_to_msgs(factory: MessageFactory, pose):
               'trusted': 'true' if trusted else 'false',
               'reason': str(pose.reason)[:200],
               'self_mask': encode_body(pose.body),
-              'mirrored': 'true' if pose.mirrored else 'false'}
+              'mirrored': 'true' if pose.mirrored else 'false',
+              'range_noise': '' if pose.range_noise is None else f'{pose.range_noise:.4f}'}
     f = factory
     status = f.make('diagnostic_msgs/msg/DiagnosticStatus', level=f.byte(0 if trusted else 1),
                     name=EGO_STATUS_NAME, message=f'{pose.source}: {pose.reason}'[:200],
@@ -516,14 +518,18 @@ def ego_motion_from_msgs(odometry_msg, status_msg=None):
         source, reason = values.get('source', ''), values.get('reason', '')
         body = decode_body(values.get('self_mask', ''))
         mirrored = values.get('mirrored', 'false') == 'true'
+        try:
+            range_noise = float(values['range_noise']) if values.get('range_noise') else None
+        except ValueError:
+            raise ValueError('ego-motion status: range_noise is not a number') from None
     else:
-        body, mirrored = None, False
+        body, mirrored, range_noise = None, False, None
     return StampedPose(stamp=odo.stamp, pose=pose, motion=np.zeros(3),
                        motion_covariance=np.zeros((3, 3)), pose_covariance=pose_cov,
                        quality=quality, source=source, reason=reason,
                        frame_id=odo.frame_id or 'odom', child_frame_id=odo.child_frame_id,
                        stamp_ns=stamp_to_ns(odometry_msg.header.stamp), body=body,
-                       mirrored=mirrored)
+                       mirrored=mirrored, range_noise=range_noise)
 
 
 def encode_body(body) -> str:

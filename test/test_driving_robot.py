@@ -315,7 +315,8 @@ def test_a_noisy_scanner_on_the_robot_confirms_no_false_track(tmp_path):
     def false_tracks(out, sigmas):
         config = parameters.load([], overrides={'person_detector.enabled': False,
                                                 'self_mask.noise_sigmas': sigmas})
-        replay_bag(bag, config=config, out_dir=out, progress=False)
+        summary = replay_bag(bag, config=config, out_dir=out, progress=False)
+        assert summary['range_noise'] == pytest.approx(0.05, rel=0.2)   # measured either way
         return evaluate_replay(out, bag).result['false_detections']
 
     assert false_tracks(tmp_path / 'following', 3.0) == 0

@@ -270,3 +270,22 @@ def test_a_noisy_scanners_body_is_learnt_and_stays_masked():
     for k in range(40):
         held.learn(_noisy(scan_at(k), 0.05, rng), (0.1, 0.0, 0.0))
     assert held.mask(_noisy(scan_at(40), 0.05, rng))[BODY].mean() < 0.5
+
+
+def test_the_range_noise_survives_the_status_message():
+    """ego_motion/status carries the range noise the self-mask measured ('' before)."""
+    from laser_tracker.conversions import ego_motion_from_msgs, ego_motion_to_msgs, ros_factory
+    from laser_tracker.core.difference import PoseQuality
+    from laser_tracker.core.stages import StampedPose
+
+    factory = ros_factory()
+    for noise in (0.0312, None):
+        pose = StampedPose(stamp=1.0, pose=np.zeros(3), motion=np.zeros(3),
+                           motion_covariance=np.zeros((3, 3)), pose_covariance=np.zeros((3, 3)),
+                           quality=PoseQuality(), range_noise=noise)
+        back = ego_motion_from_msgs(*ego_motion_to_msgs(factory, pose))
+        assert back.range_noise == noise
+    odometry, status = ego_motion_to_msgs(factory, pose)
+    next(kv for kv in status.status[0].values if kv.key == 'range_noise').value = 'x'
+    with pytest.raises(ValueError, match='range_noise'):
+        ego_motion_from_msgs(odometry, status)

@@ -88,7 +88,8 @@ class StampedPose:
     ``body``: per beam of the scan, the farthest range of the robot's own body (NaN: none;
     ``core.self_mask``): detection masks those returns as ego-motion did. ``mirrored``: the
     pose is that of the scan turned over (``ego_motion.mount_upside_down``, ``Scan.mirrored``),
-    and detection turns the scan over too.
+    and detection turns the scan over too. ``range_noise``: the scanner's range noise near the
+    robot as the self-mask measures it (m, one sigma; None: not measured yet).
     """
 
     stamp: float
@@ -106,6 +107,7 @@ class StampedPose:
     estimate: EgoMotionEstimate | None = field(default=None, repr=False)
     body: np.ndarray | None = field(default=None, repr=False)
     mirrored: bool = False
+    range_noise: float | None = None
 
 
 class EgoMotion:
@@ -291,7 +293,8 @@ class EgoMotion:
                            source=source, reason=str(est.reason), dt=float(est.dt),
                            frame_id=self.frame_id, child_frame_id=scan.frame_id,
                            stamp_ns=scan.stamp_ns, estimate=est,
-                           body=self.self_mask.applied, mirrored=mirrored)
+                           body=self.self_mask.applied, mirrored=mirrored,
+                           range_noise=self.self_mask.range_noise)
 
 
 # ------------------------------------------------------------------------------- detection

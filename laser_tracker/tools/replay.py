@@ -12,7 +12,8 @@ stream rules. It writes into ``--out DIR``:
   ``moving`` are 0/1);
 * ``summary.json``: scans, scans skipped with their reasons, the scans of a fast scanner
   that detection left out (``scans_thinned``, ``difference.max_scan_rate``: they have
-  poses only), every stage's counted events, messages stamped with their receive time (no
+  poses only), the scanner's range noise near the robot (``range_noise``, m, as the
+  self-mask measured it), every stage's counted events, messages stamped with their receive time (no
   header stamp), hypotheses created, confirmed tracks, ego-motion sources, the scanner mount
   used, timing, the configuration used;
 * ``tracks.png`` (paper Fig. 10) and, with ``--figure-scan K``, ``scan_K.png`` (Fig. 5 / 7).
@@ -435,6 +436,7 @@ def _replay(bag_path, config, out_dir, scan_topic, odom_topic, progress, figure_
         'confirmed_tracks': len(confirmed_ids),
         'tracker': {k: int(v) for k, v in stats.items()},
         'ego_motion_sources': dict(pipeline.sources),
+        'range_noise': pipeline.ego.self_mask.range_noise,
         'scanner_mount': {'x': config.ego_motion.mount_x, 'y': config.ego_motion.mount_y,
                           'yaw': config.ego_motion.mount_yaw, 'source': mount.source,
                           'mirrored': upside_down},
