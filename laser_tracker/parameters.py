@@ -109,6 +109,7 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'difference.static_time': 0.0,     # no static background
         'difference.walked_out_window': 0.0,  # a person walked in, never out
         'difference.max_scan_rate': 0.0,   # every scan, however fast the scanner
+        'difference.ignore_lone_returns': False,  # every return can be a change
         'blobs.position': 'changed',       # the blob is its changed cells
         'blobs.centre_offset': 0.0,
         'person_detector.enabled': False,  # what moves only: no people by leg shape

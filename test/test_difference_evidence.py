@@ -156,3 +156,53 @@ def test_a_cell_crossed_by_a_beam_that_ended_short_of_it_is_not_seen_free_after_
     assert _changed_cell(True, np.array(back), {3: in_cell}, (3.05, 0.165))
     here = np.zeros(3)                              # the same place: (3.05, 0.16)
     assert _changed_cell(True, here, {3: math.hypot(3.05, 0.16), 2: 3.12}, (3.05, 0.16))
+
+
+def _with_returns(scan: Scan, returns: dict) -> Scan:
+    import dataclasses
+    r = scan.ranges.copy()
+    for beam, value in returns.items():
+        r[beam] = value
+    return dataclasses.replace(scan, ranges=r)
+
+
+def test_a_lone_spurious_return_in_free_space_is_no_change_a_post_is():
+    """One beam returning 2 m into the room that every scan saw free (dust, a glitch) is no
+    change with difference.ignore_lone_returns; it is one without. A 0.15 m post walking in
+    (several beams) is a change either way, and so is a lone return where a leg could be a
+    single beam."""
+    def blobs(ignore, returns=None, post=None):
+        det = Detector(difference=DifferenceConfig(ignore_lone_returns=ignore))
+        for k in range(4):
+            det.update(_room_scan(0.2 * k, (0, 0, 0)), _pose(0.2 * k, (0, 0, 0)))
+        scan = _room_scan(0.8, (0, 0, 0), post)
+        if returns:
+            scan = _with_returns(scan, returns)
+        return det.update(scan, _pose(0.8, (0, 0, 0))).detections.blobs.count
+    assert blobs(False, {200: 2.0}) == 1
+    assert blobs(True, {200: 2.0}) == 0
+    assert blobs(True, {200: 2.0, 201: 2.01}) == 1               # two beams: an object
+    assert blobs(True, {200: 2.0, 201: np.nan, 199: np.inf}) == 0  # alone among silent beams
+    assert blobs(True, post=(2.0, 0.5)) == blobs(False, post=(2.0, 0.5)) == 1
+    # 6.5 m away a leg may be a single beam at 0.5 deg (beyond 0.05 m / 0.5 deg = 5.7 m):
+    # there a lone return stays a change
+    assert blobs(True, {270: 6.5}) == blobs(False, {270: 6.5}) == 1
+
+
+def test_lone_returns_are_mapped_to_the_grids_own_cells():
+    """without_lone_returns places each return in the cell the grid put it in (the rule
+    leaves the changes alone if it could not)."""
+    from laser_tracker.core.difference import without_lone_returns
+    builder = GridBuilder(GridConfig())
+    scan = _with_returns(_room_scan(0.0, (0, 0, 0)), {100: 1.5, 300: 3.0})
+    frame = builder.build(scan)
+    every_cell = np.unique(frame.flat)
+    kept = without_lone_returns(every_cell, frame, scan, 0.13)
+    gone = np.setdiff1d(every_cell, kept)
+    angles = scan.angle_min + np.array([100, 300]) * scan.angle_increment
+    xy = np.column_stack((np.array([1.5, 3.0]) * np.cos(angles),
+                          np.array([1.5, 3.0]) * np.sin(angles)))
+    cells, res = builder.cells, builder.config.resolution
+    expected = (np.floor(xy[:, 0] / res + cells / 2) * cells
+                + np.floor(xy[:, 1] / res + cells / 2)).astype(int)
+    assert sorted(gone.tolist()) == sorted(expected.tolist())

@@ -278,13 +278,14 @@ def test_the_real_robots_left_and_right_scanners_on_one_topic():
 
 
 def test_a_40_hz_scanner_confirms_no_false_track_once_thinned(tmp_path):
-    """The same drive seen by a 40 Hz scanner (every head revolution delivered): the
-    method's counts of scans, set at 4 to 10 Hz, confirm what flickers when fed every scan
-    (difference.max_scan_rate 0); thinned to 10 scans a second nothing false is confirmed
-    and the people are still tracked. The evaluation scores the scans the replay used."""
+    """The real robot's corridor and lobby (the bundled hokuyo_corridor_lobby) seen by a
+    40 Hz scanner (every head revolution delivered): the method's counts of scans, set at 4
+    to 10 Hz, confirm what flickers when fed every scan (difference.max_scan_rate 0);
+    thinned to 10 scans a second nothing false is confirmed and the people are still
+    tracked. The evaluation scores the scans the replay used."""
     from laser_tracker.tools.bench_sims import simulate_scanner
 
-    bag = simulate_scanner(NAME, tmp_path / 'driving_40hz', rate_hz=40.0)
+    bag = simulate_scanner('hokuyo_corridor_lobby', tmp_path / 'lobby_40hz', rate_hz=40.0)
     results = {}
     for rate in (10.0, 0.0):
         out = tmp_path / f'replay_{rate:g}'
@@ -299,8 +300,8 @@ def test_a_40_hz_scanner_confirms_no_false_track_once_thinned(tmp_path):
     assert thinned[1]['false_detections'] == 0
     mot = thinned[1]['clear_mot']['detectable']
     assert thinned[1]['ground_truth_frames_not_replayed'] == pytest.approx(1200, abs=10)
-    assert mot['num_objects'] < 500                  # the 400 scans used, not all 1,600
-    assert mot['mota'] >= 0.5
+    assert mot['num_objects'] < 1500          # the 400 scans used, not all 1,600
+    assert mot['mota'] >= 0.3
 
 
 def test_a_noisy_scanner_on_the_robot_confirms_no_false_track(tmp_path):
@@ -321,3 +322,21 @@ def test_a_noisy_scanner_on_the_robot_confirms_no_false_track(tmp_path):
 
     assert false_tracks(tmp_path / 'following', 3.0) == 0
     assert false_tracks(tmp_path / 'held', 0.0) >= 3           # the tolerance held at 5 cm
+
+
+def test_spurious_returns_confirm_no_false_track(tmp_path):
+    """The same drive seen by a scanner that reports half a percent of its beams at a random
+    range short of the surface (dust, mixed pixels): each such return stands alone in space
+    seen free, a change to Eq. 1, and they confirm false tracks; as lone returns they are no
+    change (difference.ignore_lone_returns) and nothing false is confirmed."""
+    from laser_tracker.tools.bench_sims import simulate_scanner
+
+    bag = simulate_scanner(NAME, tmp_path / 'driving_dusty', spurious=0.005)
+
+    def false_tracks(out, ignore):
+        config = parameters.load([], overrides={'difference.ignore_lone_returns': ignore})
+        replay_bag(bag, config=config, out_dir=out, progress=False)
+        return evaluate_replay(out, bag).result['false_detections']
+
+    assert false_tracks(tmp_path / 'ignored', True) == 0
+    assert false_tracks(tmp_path / 'changes', False) >= 3

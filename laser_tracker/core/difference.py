@@ -53,6 +53,14 @@ Options (not in the paper):
   trusted grid, a larger ``motion_depth`` for the scan; a ratio of 0.7 costs fig8 (its
   matches explain 66-70 % of the points).
 
+* ``ignore_lone_returns`` (default on): a changed cell whose every return is a lone return
+  (:func:`without_lone_returns`: both neighbouring beams pass well beyond it, or return
+  nothing) is no change. A spurious echo (dust, a reflection, a glitch of the scanner)
+  stands in space the previous scans saw free, so each one is a change, and at half a
+  percent of the beams they made 6 to 13 false tracks in 40 s of the simulated Hokuyo
+  recordings; a person's leg within range spans several beams, and a thin static object
+  seen by one beam stays in the grid, holding its cell against later changes.
+
 Pose quality (:class:`PoseQuality`, from an ego-motion estimate by :func:`pose_quality`) is
 what the gate reads; between the nodes it travels on ``ego_motion/status`` beside the pose
 (``conversions.ego_motion_to_msgs``).
@@ -163,6 +171,13 @@ class DifferenceConfig:
         'method counts scans (the paper\'s four samples, Eq. 3\'s gain per supporting scan, '
         'the grids of memory), and its counts were set at 4 to 10 Hz: at 15 Hz and above they '
         'confirm what flickers. 0 = every scan (paper).', min=0.0, max=1000.0)
+    ignore_lone_returns: bool = param(
+        True, 'A changed cell whose every return is a lone return is no change: a return '
+        'whose neighbouring beams both pass more than segments.jump_distance (or three beam '
+        'spacings at its range, a surface met obliquely) beyond it, or return nothing. A '
+        'spurious echo (dust, a reflection, a glitch) stands alone in space seen free; a '
+        'person\'s leg spans several beams, and a thin static object seen by one beam still '
+        'holds its cell in the grid. false = paper (every return).')
     walked_out_window: float = param(
         1.0, 'A detected person has also walked (like one who walked in) when, in a scan of '
         'the last this many seconds, the person detected nearest them was at least two '
@@ -616,6 +631,55 @@ def _within(dx, dy, limit):
     leave it open)."""
     side = jit.compare_length(dx, dy, limit)
     return side < 0 or (side == 0 and math.sqrt(dx * dx + dy * dy) <= limit)
+
+
+#: A lone return stands out from both neighbouring returns by at least this many beam
+#: spacings at its range: adjacent returns on one surface lie r dtheta tan(incidence) apart
+#: in range, within three spacings up to 72 deg of incidence.
+LONE_SPACINGS = 3.0
+#: The narrowest target the tracker follows (m): a leg. A lone return is no change only
+#: where a leg spans two beams or more (nearer than LEG_WIDTH / 2 over the beam spacing:
+#: 8 m for 0.35 deg beams, 5.7 m for 0.5 deg, 2.9 m for 1 deg); farther, a leg may be one.
+LEG_WIDTH = 0.1
+
+
+def without_lone_returns(changed: np.ndarray, frame, scan, jump: float) -> np.ndarray:
+    """``changed`` (flat cell indices, as :func:`changed_with_history` gives them) without
+    the cells whose every return in ``scan`` (the scan ``frame`` was built from) is a lone
+    return: one whose neighbouring beams both pass more than ``jump`` (or
+    ``LONE_SPACINGS`` beam spacings at its range) beyond it, or return nothing."""
+    if not changed.size:
+        return changed
+    r = np.asarray(scan.ranges, dtype=float)
+    with np.errstate(invalid='ignore'):
+        valid = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
+    reach = np.where(valid, r, np.inf)               # a beam without a return passes beyond
+    with np.errstate(invalid='ignore'):              # inf - inf: both passed beyond
+        step = np.diff(reach)
+    step[np.isnan(step)] = np.inf
+    margin = np.maximum(jump, LONE_SPACINGS * np.where(valid, r, 0.0)
+                        * abs(scan.angle_increment))
+    beyond_left = np.concatenate(([np.inf], -step)) > margin
+    beyond_right = np.concatenate((step, [np.inf])) > margin
+    # only where the narrowest target, a leg, spans two beams or more
+    within = np.where(valid, r, np.inf) * abs(scan.angle_increment) <= 0.5 * LEG_WIDTH
+    lone = (valid & beyond_left & beyond_right & within)[valid]
+    if not lone.any():
+        return changed
+    # frame.flat holds the valid returns inside the grid, in beam order
+    b = frame.builder
+    angles = scan.angle_min + np.flatnonzero(valid) * scan.angle_increment
+    half = b.cells / 2.0
+    res = float(b.config.resolution)
+    ix = np.floor(r[valid] * np.cos(angles) / res + half)
+    iy = np.floor(r[valid] * np.sin(angles) / res + half)
+    inside = (ix >= 0) & (ix < b.cells) & (iy >= 0) & (iy < b.cells)
+    lone = lone[inside]
+    if lone.size != frame.flat.size or not lone.any():
+        return changed
+    with_others = np.unique(frame.flat[~lone])
+    only_lone = np.setdiff1d(np.unique(frame.flat[lone]), with_others, assume_unique=True)
+    return changed[~np.isin(changed, only_lone, assume_unique=True)]
 
 
 def changed_with_history(frame, stamp: float, pose, history: GridHistory,

@@ -41,7 +41,8 @@ from laser_tracker.core.blobs import BlobConfig, segment
 from laser_tracker.core.detections import Blobs, Detections, People, Segments, View
 from laser_tracker.core.difference import (DifferenceConfig, PoseQuality, StaticBackground,
                                            changed_with_history, difference_map,
-                                           people_in_odometry, pose_quality, pose_trusted)
+                                           people_in_odometry, pose_quality, pose_trusted,
+                                           without_lone_returns)
 from laser_tracker.core.egomotion import EgoMotionConfig, EgoMotionEstimate, EgoMotionEstimator
 from laser_tracker.core.grid import (GridBuilder, GridConfig, GridHistory, relative_motion,
                                      transform_grid)
@@ -531,6 +532,9 @@ class Detector:
         t1 = time.perf_counter() if times is not None else 0.0
         d_cells = changed_with_history(frame, stamp, pose, history, self.difference_config,
                                        self.background)
+        if self.difference_config.ignore_lone_returns:
+            d_cells = without_lone_returns(d_cells, frame, scan,
+                                           self.segment_config.jump_distance)
         t2 = time.perf_counter() if times is not None else 0.0
         if d_cells.size:
             blobs = segment(d_cells, cells, res, pose, scan.stamp, self.blob_config,

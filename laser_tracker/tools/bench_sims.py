@@ -11,7 +11,8 @@ in view (MOTA, false-positive frames, ID switches) and the median position error
 (``driving_past_people``, ``hokuyo_corridor_lobby``) as scanners of those rates (the head
 turning that fast, every revolution delivered) and scores them as rows ``NAME@RATEHz``;
 ``--range-noise 0.03 0.05`` as scanners of that range noise (m, one sigma), rows
-``NAME@NOISEm``.
+``NAME@NOISEm``; ``--spurious 0.005 0.02`` as scanners that report that share of their beams
+at a random range short of the surface (dust, a mixed pixel), rows ``NAME@SHAREspurious``.
 """
 from __future__ import annotations
 
@@ -42,6 +43,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--range-noise', nargs='+', type=float, default=[], metavar='M',
                         help='also the Hokuyo scenarios simulated as scanners of this range '
                         'noise (m, one sigma; bundled: 0.01 and 0.015), rows NAME@NOISEm')
+    parser.add_argument('--spurious', nargs='+', type=float, default=[], metavar='SHARE',
+                        help='also the Hokuyo scenarios simulated as scanners that report '
+                        'this share of their beams at a random range short of the surface '
+                        '(dust, a mixed pixel; bundled: 0.0005), rows '
+                        'NAME@SHAREspurious')
 
 
 #: The scenarios of a Hokuyo-class scanner, whose head rate ``--scan-rates`` changes.
@@ -49,10 +55,11 @@ HOKUYO_SCENARIOS = ('driving_past_people', 'hokuyo_corridor_lobby')
 
 
 def simulate_scanner(name: str, out: Path, rate_hz: float | None = None,
-                     noise: float | None = None) -> Path:
+                     noise: float | None = None, spurious: float | None = None) -> Path:
     """The scenario ``name`` seen by another scanner, written to ``out``: one of ``rate_hz``
-    (its head turning that fast, every revolution delivered), or of range noise ``noise``
-    (m, one sigma)."""
+    (its head turning that fast, every revolution delivered), of range noise ``noise`` (m,
+    one sigma), or that reports a share ``spurious`` of its beams at a random range short of
+    the surface."""
     import dataclasses
 
     from laser_tracker.tools.sim.recorder import record
@@ -65,6 +72,8 @@ def simulate_scanner(name: str, out: Path, rate_hz: float | None = None,
         lidar = dataclasses.replace(lidar, revolution_hz=float(rate_hz), skip=0)
     if noise is not None:
         lidar = dataclasses.replace(lidar, noise_sigma=float(noise))
+    if spurious is not None:
+        lidar = dataclasses.replace(lidar, spurious_probability=float(spurious))
     write_recording(record(dataclasses.replace(scenario, lidar=lidar)), out)
     return out
 
@@ -98,8 +107,8 @@ def _job(job):
 
 
 def _simulate(job) -> Path:
-    _, name, out, rate, noise = job
-    return simulate_scanner(name, out, rate, noise)
+    _, name, out, rate, noise, spurious = job
+    return simulate_scanner(name, out, rate, noise, spurious)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -115,10 +124,12 @@ def run(args: argparse.Namespace) -> int:
     results: dict = {}
     with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_rates_') as tmp, \
             ProcessPoolExecutor(max(1, args.jobs)) as pool:
-        other = [(f'{name}@{rate:g}Hz', name, Path(tmp) / f'{name}@{rate:g}Hz', rate, None)
-                 for name in HOKUYO_SCENARIOS for rate in args.scan_rates]
-        other += [(f'{name}@{noise:g}m', name, Path(tmp) / f'{name}@{noise:g}m', None, noise)
-                  for name in HOKUYO_SCENARIOS for noise in args.range_noise]
+        other = [(f'{name}@{rate:g}Hz', name, Path(tmp) / f'{name}@{rate:g}Hz', rate, None,
+                  None) for name in HOKUYO_SCENARIOS for rate in args.scan_rates]
+        other += [(f'{name}@{noise:g}m', name, Path(tmp) / f'{name}@{noise:g}m', None, noise,
+                   None) for name in HOKUYO_SCENARIOS for noise in args.range_noise]
+        other += [(f'{name}@{share:g}spurious', name, Path(tmp) / f'{name}@{share:g}spurious',
+                   None, None, share) for name in HOKUYO_SCENARIOS for share in args.spurious]
         for (row, *_), bag in zip(other, pool.map(_simulate, other)):
             jobs += [(row, mode, args.config, bag) for mode in modes]
         done = pool.map(_job, jobs) if args.jobs > 1 else map(_job, jobs)
