@@ -80,6 +80,7 @@ from laser_tracker.core.egomotion import SOURCE_ICP, SOURCE_INIT, SOURCE_ODOMETR
 from laser_tracker.core.grid import (FREE, NEIGHBOURS_I, NEIGHBOURS_J, OCCUPIED, PAD, UNKNOWN,
                                      GridHistory, covering_beam, history_motions,
                                      index_map, lookup_grid, mapped_cell)
+from laser_tracker.core.scan import beam_table
 
 #: Ego-motion sources whose pose detection may trust (``core.egomotion``): ``odometry`` and
 #: ``constant_velocity`` (coasting: no match accepted) and ``none`` are not.
@@ -647,39 +648,59 @@ def without_lone_returns(changed: np.ndarray, frame, scan, jump: float) -> np.nd
     """``changed`` (flat cell indices, as :func:`changed_with_history` gives them) without
     the cells whose every return in ``scan`` (the scan ``frame`` was built from) is a lone
     return: one whose neighbouring beams both pass more than ``jump`` (or
-    ``LONE_SPACINGS`` beam spacings at its range) beyond it, or return nothing."""
+    ``LONE_SPACINGS`` beam spacings at its range) beyond it, or return nothing, nearer than
+    where a leg (``LEG_WIDTH``) spans fewer than two beams. One kernel call."""
     if not changed.size:
         return changed
-    r = np.asarray(scan.ranges, dtype=float)
-    with np.errstate(invalid='ignore'):
-        valid = (r >= max(scan.range_min, 1e-6)) & (r < scan.range_max)
-    reach = np.where(valid, r, np.inf)               # a beam without a return passes beyond
-    with np.errstate(invalid='ignore'):              # inf - inf: both passed beyond
-        step = np.diff(reach)
-    step[np.isnan(step)] = np.inf
-    margin = np.maximum(jump, LONE_SPACINGS * np.where(valid, r, 0.0)
-                        * abs(scan.angle_increment))
-    beyond_left = np.concatenate(([np.inf], -step)) > margin
-    beyond_right = np.concatenate((step, [np.inf])) > margin
-    # only where the narrowest target, a leg, spans two beams or more
-    within = np.where(valid, r, np.inf) * abs(scan.angle_increment) <= 0.5 * LEG_WIDTH
-    lone = (valid & beyond_left & beyond_right & within)[valid]
-    if not lone.any():
-        return changed
-    # frame.flat holds the valid returns inside the grid, in beam order
     b = frame.builder
-    angles = scan.angle_min + np.flatnonzero(valid) * scan.angle_increment
-    half = b.cells / 2.0
-    res = float(b.config.resolution)
-    ix = np.floor(r[valid] * np.cos(angles) / res + half)
-    iy = np.floor(r[valid] * np.sin(angles) / res + half)
-    inside = (ix >= 0) & (ix < b.cells) & (iy >= 0) & (iy < b.cells)
-    lone = lone[inside]
-    if lone.size != frame.flat.size or not lone.any():
-        return changed
-    with_others = np.unique(frame.flat[~lone])
-    only_lone = np.setdiff1d(np.unique(frame.flat[lone]), with_others, assume_unique=True)
-    return changed[~np.isin(changed, only_lone, assume_unique=True)]
+    _, cos, sin = beam_table(float(scan.angle_min), float(scan.angle_increment), scan.n_beams)
+    keep = _lone_kept(changed, frame.flat, np.asarray(scan.ranges, dtype=np.float64), cos, sin,
+                      abs(float(scan.angle_increment)), max(float(scan.range_min), 1e-6),
+                      float(scan.range_max), float(jump), LONE_SPACINGS, 0.5 * LEG_WIDTH,
+                      b.cells, float(b.config.resolution))
+    return changed if keep.all() else changed[keep]
+
+
+@jit.kernel
+def _lone_kept(changed, flat, r, cos, sin, spacing, range_min, range_max, jump, spacings,
+               half_leg, cells, resolution):
+    """Per changed cell, whether it holds a return that is not lone (all True when the
+    scan's returns do not line up with the grid's points ``flat``: nothing is dropped)."""
+    keep = np.ones(changed.size, np.bool_)
+    n = r.size
+    lone_in = np.zeros(cells * cells, np.bool_)
+    other_in = np.zeros(cells * cells, np.bool_)
+    half = cells / 2.0
+    k = 0
+    any_lone = False
+    for i in range(n):
+        ri = r[i]
+        if not (range_min <= ri < range_max):       # NaN, inf and no-return codes
+            continue
+        ix = math.floor(ri * cos[i] / resolution + half)
+        iy = math.floor(ri * sin[i] / resolution + half)
+        if ix < 0 or ix >= cells or iy < 0 or iy >= cells:
+            continue
+        cell = ix * cells + iy
+        if k >= flat.size or flat[k] != cell:
+            return keep
+        k += 1
+        margin = max(jump, spacings * ri * spacing)
+        lone = ri * spacing <= half_leg
+        for j in (i - 1, i + 1):
+            if lone and 0 <= j < n and range_min <= r[j] < range_max and r[j] - ri <= margin:
+                lone = False
+        if lone:
+            lone_in[cell] = True
+            any_lone = True
+        else:
+            other_in[cell] = True
+    if k != flat.size or not any_lone:
+        return keep
+    for m in range(changed.size):
+        c = changed[m]
+        keep[m] = not (lone_in[c] and not other_in[c])
+    return keep
 
 
 def changed_with_history(frame, stamp: float, pose, history: GridHistory,

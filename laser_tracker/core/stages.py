@@ -704,6 +704,7 @@ def _exercise_detection() -> None:
     frame = detector.history[0]
     segment(np.unique(frame.flat), detector.builder.cells, detector.grid_config.resolution,
             pose.pose, pose.stamp, detector.blob_config, frame.points)
+    without_lone_returns(np.unique(frame.flat), frame, scan, 0.13)
     one_leaf = LegClassifier(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 2)), 0.0)
     people = PersonDetector(PersonDetectorConfig(), one_leaf).detect(scan)
     people.legs = np.array([[0, -1]])
