@@ -670,18 +670,19 @@ def _lone_kept(changed, flat, r, cos, sin, spacing, range_min, range_max, jump, 
     n = r.size
     lone_in = np.zeros(cells * cells, np.bool_)
     other_in = np.zeros(cells * cells, np.bool_)
-    half = cells / 2.0
+    half = cells * resolution / 2.0          # the grid's own arithmetic (grid._build)
+    inv = 1.0 / resolution
     k = 0
     any_lone = False
     for i in range(n):
         ri = r[i]
         if not (range_min <= ri < range_max):       # NaN, inf and no-return codes
             continue
-        ix = math.floor(ri * cos[i] / resolution + half)
-        iy = math.floor(ri * sin[i] / resolution + half)
-        if ix < 0 or ix >= cells or iy < 0 or iy >= cells:
+        x, y = ri * cos[i], ri * sin[i]
+        if not (abs(x) < half and abs(y) < half):
             continue
-        cell = ix * cells + iy
+        cell = int(math.floor(x * inv + cells / 2.0)) * cells + \
+            int(math.floor(y * inv + cells / 2.0))
         if k >= flat.size or flat[k] != cell:
             return keep
         k += 1
