@@ -681,11 +681,14 @@ def _lone_kept(changed, flat, r, cos, sin, spacing, range_min, range_max, jump, 
         x, y = ri * cos[i], ri * sin[i]
         if not (abs(x) < half and abs(y) < half):
             continue
-        cell = int(math.floor(x * inv + cells / 2.0)) * cells + \
-            int(math.floor(y * inv + cells / 2.0))
+        u = int(math.floor(x * inv + cells / 2.0))
+        v = int(math.floor(y * inv + cells / 2.0))
+        cell = u * cells + v
         if k >= flat.size or flat[k] != cell:
             return keep
         k += 1
+        if not (0 <= u < cells and 0 <= v < cells):  # rounded onto the edge: not a cell
+            continue
         margin = max(jump, spacings * ri * spacing)
         lone = ri * spacing <= half_leg
         for j in (i - 1, i + 1):
@@ -700,7 +703,8 @@ def _lone_kept(changed, flat, r, cos, sin, spacing, range_min, range_max, jump, 
         return keep
     for m in range(changed.size):
         c = changed[m]
-        keep[m] = not (lone_in[c] and not other_in[c])
+        if 0 <= c < lone_in.size:
+            keep[m] = not (lone_in[c] and not other_in[c])
     return keep
 
 
