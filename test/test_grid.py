@@ -453,3 +453,17 @@ def test_the_footprint_of_a_cell_is_every_beam_within_its_angular_extent(
             raise AssertionError(f'cell {p}: beams {table.rays[1:, p]}, not {low}-{high}')
         widths.append(table.rays[2, p] - table.rays[1, p])
     assert max(widths) > 2                              # near cells span several beams
+
+
+def test_a_return_just_inside_the_grids_edge_gets_no_cell_outside_it():
+    """x just below half the grid's side rounds onto the edge cell index (cells): such a
+    return is left out, never given a flat index past the grid (kernels index by it)."""
+    builder = GridBuilder(GridConfig())
+    half = builder.cells * builder.config.resolution / 2.0
+    edge = np.nextafter(half, 0.0)
+    ranges = np.array([edge, edge, 3.0])
+    scan = Scan(stamp=0.0, ranges=ranges, angle_min=0.0, angle_increment=math.pi / 2,
+                range_min=0.05, range_max=20.0)
+    frame = builder.build(scan)
+    assert frame.flat.size >= 1                                   # the 3 m return
+    assert (frame.flat < builder.cells ** 2).all() and (frame.ij < builder.cells).all()

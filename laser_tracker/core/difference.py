@@ -683,12 +683,12 @@ def _lone_kept(changed, flat, r, cos, sin, spacing, range_min, range_max, jump, 
             continue
         u = int(math.floor(x * inv + cells / 2.0))
         v = int(math.floor(y * inv + cells / 2.0))
+        if u >= cells or v >= cells:               # rounded onto the edge: not in the grid
+            continue
         cell = u * cells + v
         if k >= flat.size or flat[k] != cell:
             return keep
         k += 1
-        if not (0 <= u < cells and 0 <= v < cells):  # rounded onto the edge: not a cell
-            continue
         margin = max(jump, spacings * ri * spacing)
         lone = ri * spacing <= half_leg
         for j in (i - 1, i + 1):

@@ -504,9 +504,11 @@ def _build(r, cos, sin, valid_min, range_max, limit, settings, cells, echo, free
     for i in idx:
         x, y = r[i] * cos[i], r[i] * sin[i]
         if abs(x) < half and abs(y) < half:
-            pts[k, 0], pts[k, 1] = x, y
             u = math.floor(x * inv + cells / 2.0)
             v = math.floor(y * inv + cells / 2.0)
+            if u >= cells or v >= cells:      # just inside the edge, rounded onto it
+                continue
+            pts[k, 0], pts[k, 1] = x, y
             ij[k, 0], ij[k, 1] = u, v
             flat[k] = int(u) * cells + int(v)
             padded[k] = (int(u) + PAD) * m + int(v) + PAD
