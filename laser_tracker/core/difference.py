@@ -703,8 +703,7 @@ def _lone_kept(changed, flat, r, cos, sin, spacing, range_min, range_max, jump, 
         return keep
     for m in range(changed.size):
         c = changed[m]
-        if 0 <= c < lone_in.size:
-            keep[m] = not (lone_in[c] and not other_in[c])
+        keep[m] = not (lone_in[c] and not other_in[c])
     return keep
 
 

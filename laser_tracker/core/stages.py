@@ -421,8 +421,6 @@ class Detector:
         turned over (``pose.mirrored``) turns ``scan`` over first.
         """
         self.skipped = None
-        if pose.mirrored:
-            scan = scan.mirrored()
         verdict = self.rules.screen(scan.stamp, 'scan', self.events)
         if verdict in SKIPPED:
             self.skipped = f'{verdict} stamp'
@@ -444,6 +442,8 @@ class Detector:
                              'second (difference.max_scan_rate)', logging.INFO)
             return None
         self.rules.accept(scan.stamp)
+        if pose.mirrored:
+            scan = scan.mirrored()
         measured = scan
         view = View.of_scan(scan)           # the robot's body hides what lies behind it
         scan = _without_body(scan, pose.body)

@@ -127,19 +127,16 @@ class ScanThinning:
         """The scanner's median period (s), once three intervals are known."""
         return statistics.median(self.intervals) if len(self.intervals) >= 3 else None
 
-    def thinning(self) -> bool:
-        """Whether the scanner is fast enough to be thinned."""
-        period = self.period
-        return self.max_rate > 0.0 and period is not None and period < 0.75 / self.max_rate
-
     def use(self, stamp: float) -> bool:
         """Whether the scan stamped ``stamp`` is used."""
         if self.last is not None and stamp > self.last:
             self.intervals.append(stamp - self.last)
         self.last = stamp
-        if self.used is not None and self.thinning() and \
-                stamp - self.used < 1.0 / self.max_rate - self.period / 3.0:
-            return False
+        if self.used is not None and self.max_rate > 0.0:
+            period = self.period
+            if period is not None and period < 0.75 / self.max_rate and \
+                    stamp - self.used < 1.0 / self.max_rate - period / 3.0:
+                return False
         self.used = stamp
         return True
 

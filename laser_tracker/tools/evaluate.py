@@ -237,7 +237,7 @@ def evaluate_replay(folder: str | Path, bag: str | Path,
     bag = resolve_bag(bag)
     truth, true_stamps, true_poses = load_truth(bag)
     # the nearer of the two periods: a replay may use fewer scans than the recording has
-    # (detection.max_rate), or the truth may have fewer frames than scans
+    # (difference.max_scan_rate), or the truth may have fewer frames than scans
     tol = config.stamp_tolerance * min(median_period(replay.ego_stamps),
                                        median_period(truth.stamps))
     tracks = tracks_to_map(replay.tracks, replay.ego_stamps, replay.ego_poses,

@@ -13,9 +13,9 @@ stream rules. It writes into ``--out DIR``:
 * ``summary.json``: scans, scans skipped with their reasons, the scans of a fast scanner
   that detection left out (``scans_thinned``, ``difference.max_scan_rate``: they have
   poses only), the scanner's range noise near the robot (``range_noise``, m, as the
-  self-mask measured it), every stage's counted events, messages stamped with their receive time (no
-  header stamp), hypotheses created, confirmed tracks, ego-motion sources, the scanner mount
-  used, timing, the configuration used;
+  self-mask measured it), every stage's counted events, messages stamped with their receive
+  time (no header stamp), hypotheses created, confirmed tracks, ego-motion sources, the
+  scanner mount used, timing, the configuration used;
 * ``tracks.png`` (paper Fig. 10) and, with ``--figure-scan K``, ``scan_K.png`` (Fig. 5 / 7).
 
 Configuration: ``--config FILE`` (repeatable, later files win) is read by the package's one
