@@ -285,7 +285,8 @@ def test_a_40_hz_scanner_confirms_no_false_track_once_thinned(tmp_path):
     tracked. The evaluation scores the scans the replay used."""
     from laser_tracker.tools.bench_sims import simulate_scanner
 
-    bag = simulate_scanner('hokuyo_corridor_lobby', tmp_path / 'lobby_40hz', rate_hz=40.0)
+    bag = simulate_scanner('hokuyo_corridor_lobby', tmp_path / 'lobby_40hz',
+                           revolution_hz=40.0, skip=0)
     results = {}
     for rate in (10.0, 0.0):
         out = tmp_path / f'replay_{rate:g}'
@@ -311,7 +312,7 @@ def test_a_noisy_scanner_on_the_robot_confirms_no_false_track(tmp_path):
     follows the range noise measured near the robot (three sigma)."""
     from laser_tracker.tools.bench_sims import simulate_scanner
 
-    bag = simulate_scanner(NAME, tmp_path / 'driving_noisy', noise=0.05)
+    bag = simulate_scanner(NAME, tmp_path / 'driving_noisy', noise_sigma=0.05)
 
     def false_tracks(out, sigmas):
         config = parameters.load([], overrides={'person_detector.enabled': False,
@@ -331,7 +332,8 @@ def test_spurious_returns_confirm_no_false_track(tmp_path):
     change (difference.ignore_lone_returns) and nothing false is confirmed."""
     from laser_tracker.tools.bench_sims import simulate_scanner
 
-    bag = simulate_scanner(NAME, tmp_path / 'driving_dusty', spurious=0.005)
+    bag = simulate_scanner(NAME, tmp_path / 'driving_dusty',
+                           spurious_probability=0.005)
 
     def false_tracks(out, ignore):
         config = parameters.load([], overrides={'difference.ignore_lone_returns': ignore})
@@ -340,3 +342,25 @@ def test_spurious_returns_confirm_no_false_track(tmp_path):
 
     assert false_tracks(tmp_path / 'ignored', True) == 0
     assert false_tracks(tmp_path / 'changes', False) >= 3
+
+
+
+def test_the_low_cost_360_degree_scanner_of_bench_sims_is_what_its_rows_say(tmp_path):
+    """``bench sims --scanner-360 10``: the robot's drive seen by a scanner of the RPLidar
+    A1 / LDS-01 class, as the rows' name and README.md say: 360 beams 1 deg apart around
+    the whole circle, out to 12 m, 3 cm of range noise (as the self-mask measures it), a
+    scan for every revolution at 10 Hz, the robot's body and its bumper in view."""
+    from laser_tracker.tools.bench_sims import LOW_COST_360, simulate_scanner
+
+    bag = simulate_scanner(NAME, tmp_path / 'driving_360', **dict(LOW_COST_360,
+                                                                   revolution_hz=10.0))
+    scans = list(read_scans(bag))
+    first = scans[0]
+    assert first.ranges.size == 360
+    assert math.degrees(first.angle_increment) == pytest.approx(1.0)
+    assert first.range_max == pytest.approx(12.0)
+    stamps = np.array([s.stamp for s in scans])
+    assert np.median(np.diff(stamps)) == pytest.approx(0.1, abs=1e-3)
+    assert (first.ranges < 0.8).sum() >= 5                     # the robot's own parts
+    summary = replay_bag(bag, progress=False)
+    assert summary['range_noise'] == pytest.approx(0.03, rel=0.25)

@@ -12,7 +12,9 @@ in view (MOTA, false-positive frames, ID switches) and the median position error
 turning that fast, every revolution delivered) and scores them as rows ``NAME@RATEHz``;
 ``--range-noise 0.03 0.05`` as scanners of that range noise (m, one sigma), rows
 ``NAME@NOISEm``; ``--spurious 0.005 0.02`` as scanners that report that share of their beams
-at a random range short of the surface (dust, a mixed pixel), rows ``NAME@SHAREspurious``.
+at a random range short of the surface (dust, a mixed pixel), rows ``NAME@SHAREspurious``;
+``--scanner-360 5 10`` as a low-cost 360 deg scanner turning that fast (:data:`LOW_COST_360`),
+rows ``NAME@360degRATEHz``.
 """
 from __future__ import annotations
 
@@ -48,18 +50,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'this share of their beams at a random range short of the surface '
                         '(dust, a mixed pixel; bundled: 0.0005), rows '
                         'NAME@SHAREspurious')
+    parser.add_argument('--scanner-360', nargs='+', type=float, default=[], metavar='HZ',
+                        help='also the Hokuyo scenarios seen by a low-cost 360 deg scanner '
+                        '(360 beams 1 deg apart, 12 m, 3 cm of range noise) turning at these '
+                        'rates, rows NAME@360degRATEHz')
 
 
 #: The scenarios of a Hokuyo-class scanner, whose head rate ``--scan-rates`` changes.
 HOKUYO_SCENARIOS = ('driving_past_people', 'hokuyo_corridor_lobby')
 
 
-def simulate_scanner(name: str, out: Path, rate_hz: float | None = None,
-                     noise: float | None = None, spurious: float | None = None) -> Path:
-    """The scenario ``name`` seen by another scanner, written to ``out``: one of ``rate_hz``
-    (its head turning that fast, every revolution delivered), of range noise ``noise`` (m,
-    one sigma), or that reports a share ``spurious`` of its beams at a random range short of
-    the surface."""
+#: A low-cost 360 deg scanner (the RPLidar A1 or LDS-01 class of small robots), as fields of
+#: the simulated Hokuyo: 360 beams 1 deg apart, 12 m, 3 cm of range noise, every revolution
+#: delivered.
+LOW_COST_360 = {'beams': 360, 'steps_per_revolution': 360, 'range_max': 12.0,
+                'noise_sigma': 0.03, 'skip': 0}
+
+
+def simulate_scanner(name: str, out: Path, **scanner) -> Path:
+    """The scenario ``name`` seen by another scanner, written to ``out``: ``scanner`` names
+    the fields of its :class:`~laser_tracker.tools.sim.lidar.HokuyoConfig` that differ
+    (``revolution_hz`` with ``skip=0``: a scanner of that rate, every revolution delivered;
+    ``noise_sigma``: of that range noise; ``spurious_probability``: reporting that share of
+    its beams at a random range short of the surface; :data:`LOW_COST_360`)."""
     import dataclasses
 
     from laser_tracker.tools.sim.recorder import record
@@ -67,13 +80,7 @@ def simulate_scanner(name: str, out: Path, rate_hz: float | None = None,
     from laser_tracker.tools.simulate import write_recording
 
     scenario = build(name)
-    lidar = scenario.lidar
-    if rate_hz is not None:
-        lidar = dataclasses.replace(lidar, revolution_hz=float(rate_hz), skip=0)
-    if noise is not None:
-        lidar = dataclasses.replace(lidar, noise_sigma=float(noise))
-    if spurious is not None:
-        lidar = dataclasses.replace(lidar, spurious_probability=float(spurious))
+    lidar = dataclasses.replace(scenario.lidar, **scanner)
     write_recording(record(dataclasses.replace(scenario, lidar=lidar)), out)
     return out
 
@@ -107,8 +114,8 @@ def _job(job):
 
 
 def _simulate(job) -> Path:
-    _, name, out, rate, noise, spurious = job
-    return simulate_scanner(name, out, rate, noise, spurious)
+    _, name, out, scanner = job
+    return simulate_scanner(name, out, **scanner)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -124,12 +131,15 @@ def run(args: argparse.Namespace) -> int:
     results: dict = {}
     with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_rates_') as tmp, \
             ProcessPoolExecutor(max(1, args.jobs)) as pool:
-        other = [(f'{name}@{rate:g}Hz', name, Path(tmp) / f'{name}@{rate:g}Hz', rate, None,
-                  None) for name in HOKUYO_SCENARIOS for rate in args.scan_rates]
-        other += [(f'{name}@{noise:g}m', name, Path(tmp) / f'{name}@{noise:g}m', None, noise,
-                   None) for name in HOKUYO_SCENARIOS for noise in args.range_noise]
-        other += [(f'{name}@{share:g}spurious', name, Path(tmp) / f'{name}@{share:g}spurious',
-                   None, None, share) for name in HOKUYO_SCENARIOS for share in args.spurious]
+        kinds = [[(f'{rate:g}Hz', {'revolution_hz': rate, 'skip': 0})
+                  for rate in args.scan_rates],
+                 [(f'{noise:g}m', {'noise_sigma': noise}) for noise in args.range_noise],
+                 [(f'{share:g}spurious', {'spurious_probability': share})
+                  for share in args.spurious],
+                 [(f'360deg{rate:g}Hz', dict(LOW_COST_360, revolution_hz=rate))
+                  for rate in args.scanner_360]]
+        other = [(f'{name}@{suffix}', name, Path(tmp) / f'{name}@{suffix}', scanner)
+                 for kind in kinds for name in HOKUYO_SCENARIOS for suffix, scanner in kind]
         for (row, *_), bag in zip(other, pool.map(_simulate, other)):
             jobs += [(row, mode, args.config, bag) for mode in modes]
         done = pool.map(_job, jobs) if args.jobs > 1 else map(_job, jobs)
