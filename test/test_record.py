@@ -624,11 +624,11 @@ def test_a_real_run_is_recorded_in_at_most_three_times_its_input(tmp_path):
     assert counts['/grid'] == math.ceil(7170 / DEFAULT_GRID_EVERY)
 
 
-@pytest.mark.parametrize('delay', [0.6, 0.9, 1.2, 1.5])
+@pytest.mark.parametrize('delay', [0.3, 0.6, 0.9, 1.2, 1.5])
 def test_ctrl_c_while_a_replay_starts_stops_it_with_one_line(tmp_path, delay):
-    """Ctrl-C at any moment of the start (imports, the compiled kernels loading, where LLVM
-    calls back into Python and a KeyboardInterrupt would be dropped) stops the replay with
-    one line and no traceback."""
+    """Ctrl-C at any moment of the start (imports, numba loading, the compiled kernels
+    loading, where LLVM calls back into Python and a KeyboardInterrupt would be dropped)
+    stops the replay with one line and no traceback."""
     import os
     import signal
     import sys

@@ -243,44 +243,8 @@ def _damaged(path: str, exc: Exception) -> None:
                     ' '.join(str(exc).split())[:100])
 
 
-def kernel(function: Callable) -> Callable:
-    """``function`` compiled by numba (``njit``, cached on disk where possible). Floating
-    point division by zero gives inf or NaN as in numpy (``error_model='numpy'``), not
-    Python's ZeroDivisionError: kernels replace numpy code and keep its arithmetic."""
-    numba = _configure()
-    if numba is None:
-        def missing(*args, **kwargs):
-            raise CompileError(f'numba cannot be imported ({_state["missing"]}): install it '
-                               f'(pip install numba, or apt install python3-numba)')
-        return missing
-    return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy')(function)
-
-
-def inline(function: Callable) -> Callable:
-    """A small helper of kernels, compiled into each kernel that calls it (numba's
-    ``inline='always'``): a call that passes arrays to a separately compiled function costs
-    a reference count update per array, which in a per-point loop is most of the time.
-
-    Inlined, an array argument still has its reference counted once per call unless numba
-    can pair the count with its release: when the helper uses the array last in one branch
-    and not in another (an early return, a read only some cells need), it cannot, and a
-    helper called per point then costs tens of nanoseconds per array (atomic counts): give
-    such a helper one exit and end it with :func:`alive` of its arrays."""
-    numba = _configure()
-    if numba is None:
-        return kernel(function)
-    return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy',
-                      inline='always')(function)
-
-
-def _alive(arrays) -> None:
-    """Nothing: the last use of the arrays ``arrays`` (a tuple), at the one exit of an
-    :func:`inline` helper that reads some of them only in some branches, so that numba
-    pairs their reference counts within the call and drops them (see :func:`inline`)."""
-
-
-alive = inline(_alive)
-
+# Ctrl-C while numba runs: defined before this module first loads numba (``inline`` below),
+# so that a SIGINT handler can use them while it loads.
 
 #: Set when a Ctrl-C arrived while numba's compiler was calling back into Python (see
 #: :func:`defer_interrupt`).
@@ -323,6 +287,45 @@ def raise_deferred_interrupt() -> None:
     if _interrupt_pending.is_set():
         _interrupt_pending.clear()
         raise KeyboardInterrupt
+
+
+def kernel(function: Callable) -> Callable:
+    """``function`` compiled by numba (``njit``, cached on disk where possible). Floating
+    point division by zero gives inf or NaN as in numpy (``error_model='numpy'``), not
+    Python's ZeroDivisionError: kernels replace numpy code and keep its arithmetic."""
+    numba = _configure()
+    if numba is None:
+        def missing(*args, **kwargs):
+            raise CompileError(f'numba cannot be imported ({_state["missing"]}): install it '
+                               f'(pip install numba, or apt install python3-numba)')
+        return missing
+    return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy')(function)
+
+
+def inline(function: Callable) -> Callable:
+    """A small helper of kernels, compiled into each kernel that calls it (numba's
+    ``inline='always'``): a call that passes arrays to a separately compiled function costs
+    a reference count update per array, which in a per-point loop is most of the time.
+
+    Inlined, an array argument still has its reference counted once per call unless numba
+    can pair the count with its release: when the helper uses the array last in one branch
+    and not in another (an early return, a read only some cells need), it cannot, and a
+    helper called per point then costs tens of nanoseconds per array (atomic counts): give
+    such a helper one exit and end it with :func:`alive` of its arrays."""
+    numba = _configure()
+    if numba is None:
+        return kernel(function)
+    return numba.njit(cache=_state['cache'], nogil=True, error_model='numpy',
+                      inline='always')(function)
+
+
+def _alive(arrays) -> None:
+    """Nothing: the last use of the arrays ``arrays`` (a tuple), at the one exit of an
+    :func:`inline` helper that reads some of them only in some branches, so that numba
+    pairs their reference counts within the call and drops them (see :func:`inline`)."""
+
+
+alive = inline(_alive)
 
 
 def compiled(what: str, call: Callable[[], object]) -> None:

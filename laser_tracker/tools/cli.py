@@ -12,7 +12,6 @@ import os
 import signal
 import sys
 
-from laser_tracker.core import jit
 from laser_tracker.errors import LaserTrackerError
 
 #: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
@@ -77,12 +76,21 @@ def main(argv: list[str] | None = None) -> int:
         return INTERRUPTED
 
 
+def _jit():
+    """``laser_tracker.core.jit`` once a command has imported it, else None. The command line
+    does not import it itself: it loads numba, which takes a second, and a Ctrl-C then must
+    find this module's handler installed and its ``try`` around the import."""
+    return sys.modules.get('laser_tracker.core.jit')
+
+
 def _interrupt(signum, frame) -> None:
     """Ctrl-C: KeyboardInterrupt, unless numba's C code is calling back into Python (it
-    would not reach the program from there: ``jit.defer_interrupt``); then where the work
-    next asks for it (``jit.raise_deferred_interrupt``), or :data:`INTERRUPT_RETRY` seconds
-    later, whichever comes first."""
-    if not jit.defer_interrupt(frame):
+    would not reach the program from there: ``jit.defer_interrupt``, defined before the
+    module loads numba); then where the work next asks for it
+    (``jit.raise_deferred_interrupt``), or :data:`INTERRUPT_RETRY` seconds later, whichever
+    comes first."""
+    defer = getattr(_jit(), 'defer_interrupt', None)
+    if defer is None or not defer(frame):
         raise KeyboardInterrupt
     _retry_interrupt()
 
@@ -96,6 +104,7 @@ def _retry_interrupt() -> None:
 def _interrupt_later(signum, frame) -> None:
     """The retry of a Ctrl-C kept back: raised now, unless it has been raised already or the
     program is still inside numba's callback (then a moment later again)."""
+    jit = _jit()
     if not jit.interrupt_pending():
         return
     if jit.in_numba_callback(frame):
