@@ -344,7 +344,6 @@ def test_spurious_returns_confirm_no_false_track(tmp_path):
     assert false_tracks(tmp_path / 'changes', False) >= 3
 
 
-
 def test_the_low_cost_360_degree_scanner_of_bench_sims_is_what_its_rows_say(tmp_path):
     """``bench sims --scanner-360 10``: the robot's drive seen by a scanner of the RPLidar
     A1 / LDS-01 class, as the rows' name and README.md say: 360 beams 1 deg apart around

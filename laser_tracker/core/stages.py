@@ -418,7 +418,8 @@ class Detector:
 
         When ``difference.pose_gate`` does not trust the pose (``pose.quality``), the grid is
         built and kept as history as usual but no change is reported. A pose of the scan
-        turned over (``pose.mirrored``) turns ``scan`` over first.
+        turned over (``pose.mirrored``) turns a scan that passed the stream's rules and the
+        thinning over before its grid is built.
         """
         self.skipped = None
         verdict = self.rules.screen(scan.stamp, 'scan', self.events)
