@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from laser_tracker.conversions import header
-from laser_tracker.tools.annotations import (ANNOTATION_TOPIC, PERSON_MSGTYPE, Frames,
+from laser_tracker.tools.annotations import (ANNOTATION_TOPIC, HIDDEN_TOPIC, PERSON_MSGTYPE,
+                                             Frames,
                                              annotation_velocities, read_annotations,
                                              register_person_type, score_clear_mot,
                                              score_following, to_frame)
@@ -42,20 +43,25 @@ def scan_msg(stamp):
         intensities=FACTORY.float32_array(np.zeros(0)))
 
 
-def write_annotated_bag(path: Path, people, n=40, extra=(), offset=OFFSET):
+def write_annotated_bag(path: Path, people, n=40, extra=(), offset=OFFSET, hidden=None):
     """Scans at receive ``T0 + k DT`` (header stamp ``+ offset``); ``people(k)`` gives the
     ``(id, x, y)`` annotated at scan k (scan frame), written half a period after it, like the
-    annotation tool; ``extra``: ``(receive time, id, x, y)`` more annotations."""
+    annotation tool; ``extra``: ``(receive time, id, x, y)`` more annotations; ``hidden(k)``:
+    the people out of sight at scan k, on ``HIDDEN_TOPIC``."""
     events = [(T0 + k * DT, 0, k) for k in range(n)]
     events += [(T0 + (k + 0.5) * DT, 1, (oid, x, y)) for k in range(n) for oid, x, y in people(k)]
     events += [(t, 1, (oid, x, y)) for t, oid, x, y in extra]
+    if hidden is not None:
+        events += [(T0 + (k + 0.5) * DT, 2, (oid, x, y)) for k in range(n)
+                   for oid, x, y in hidden(k)]
     events.sort(key=lambda e: (e[0], e[1]))
     with BagWriter(path) as bag:
         for t, kind, what in events:
             if kind == 0:
                 bag.write('/scan_base2', scan_msg(t + offset), t)
             else:
-                bag.write(ANNOTATION_TOPIC, person_msg(what[1], what[2], what[0]), t)
+                bag.write(ANNOTATION_TOPIC if kind == 1 else HIDDEN_TOPIC,
+                          person_msg(what[1], what[2], what[0]), t)
     return [T0 + k * DT + offset for k in range(n)]
 
 
@@ -227,9 +233,9 @@ def test_speed_is_judged_in_the_odometry_frame():
 
 
 def run_eval(tmp_path, people, rows_of, n=40, ego_keep=None, ego_nan=(), extra_args=(),
-             summary=None):
+             summary=None, hidden=None):
     bag = tmp_path / 'bag'
-    stamps = write_annotated_bag(bag, people, n)
+    stamps = write_annotated_bag(bag, people, n, hidden=hidden)
     poses = scanner_poses(n)
     keep = np.ones(n, bool) if ego_keep is None else ego_keep
     ego = [(stamps[k], *(poses[k] if k not in ego_nan else [np.nan] * 3))
@@ -266,6 +272,32 @@ def test_perturbed_tracks_give_the_exact_counts(tmp_path):
     assert (f['tracked'], f['id_switches'], f['misses'], f['false_positives']) == (36, 1, 3, 40)
     mot = r['clear_mot']['all']
     assert (mot['num_switches'], mot['num_misses'], mot['num_false_positives']) == (1, 3, 40)
+
+
+def test_false_positives_on_people_out_of_sight_are_counted_apart(tmp_path, capsys):
+    """The followed person is in view for 20 scans, then out of sight (on the hidden topic)
+    for 20, and a track follows them throughout; another track stands where nobody is. Both
+    are false positives while the person is out of sight, and only the first is on them."""
+    def seen(k):
+        return follower(k) if k < 20 else []
+
+    def hidden(k):
+        return follower(k) if k >= 20 else []
+
+    def rows(stamps, poses):
+        return feed_back(stamps, poses, follower, 40) + [
+            (stamps[k], 555, 20.0, 20.0, 0.0, 0.0, 80.0, True) for k in range(40)]
+    r = run_eval(tmp_path, seen, rows, hidden=hidden)
+    mot = r['clear_mot']['all']
+    assert (mot['num_objects'], mot['num_matches'], mot['num_false_positives']) == (20, 20, 60)
+    assert r['false_positives_on_hidden'] == 20
+    assert r['annotations']['hidden'] == 20
+    assert 'within the threshold of a person out of sight (20 such positions): 20' \
+        in capsys.readouterr().out
+    # without the hidden topic the count is not made (no such knowledge)
+    plain = run_eval(tmp_path / 'plain', seen, rows)
+    assert plain['clear_mot']['all']['num_false_positives'] == 60
+    assert plain['false_positives_on_hidden'] is None and plain['annotations']['hidden'] is None
 
 
 def test_a_sector_scores_only_the_annotations_and_tracks_within_its_bearings(tmp_path,

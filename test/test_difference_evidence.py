@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from laser_tracker.core.difference import (DifferenceConfig, StaticBackground,
                                            changed_with_history)
@@ -123,15 +124,22 @@ def _one_degree_scan(stamp, ranges):
                 angle_increment=math.pi / 180, range_min=0.05, range_max=8.0)
 
 
-def _changed_cell(footprint, pose_now, ranges_now, target):
+def _changed_cell(footprint, pose_now, ranges_now, target, more_beams=0):
     """Whether the cell of the current grid holding world point ``target`` is changed, after
     one earlier scan at the origin whose beam at 2 deg ended 3.12 m away: in the wedge of
     the cell x 3.0-3.1, y 0.1-0.2 (its nearest beam, at 3 deg, passed), short of that cell's
-    reach (centre 3.054 m + the 0.1 m margin), in the cell behind it."""
+    reach (centre 3.054 m + the 0.1 m margin), in the cell behind it. ``more_beams``: the
+    current scan has that many more beams before the first (a driver whose beam count
+    changes from scan to scan), so that its beam numbers are not the earlier scan's."""
+    import dataclasses
     builder = GridBuilder(GridConfig(free_erosion=0), keep=3, footprints=footprint)
     history = GridHistory(builder, 2)
     history.push(builder.build(_one_degree_scan(0.0, {2: 3.12}), (0.0, 0.0, 0.0)))
-    frame = builder.build(_one_degree_scan(0.1, ranges_now), pose_now)
+    now = _one_degree_scan(0.1, ranges_now)
+    now = dataclasses.replace(
+        now, ranges=np.concatenate((np.full(more_beams, np.inf), now.ranges)),
+        angle_min=now.angle_min - more_beams * now.angle_increment)
+    frame = builder.build(now, pose_now)
     config = DifferenceConfig(memory=0, free_window=0.0, static_time=0.0, motion_depth=0.0,
                               footprint=footprint)
     changed = changed_with_history(frame, 0.1, np.asarray(pose_now), history, config)
@@ -141,21 +149,26 @@ def _changed_cell(footprint, pose_now, ranges_now, target):
     return int(cell[0]) * builder.cells + int(cell[1]) in set(changed.tolist())
 
 
-def test_a_cell_crossed_by_a_beam_that_ended_short_of_it_is_not_seen_free_after_a_move():
+@pytest.mark.parametrize('more_beams', [0, 3])
+def test_a_cell_crossed_by_a_beam_that_ended_short_of_it_is_not_seen_free_after_a_move(
+        more_beams):
     """The cell x 3.0-3.1, y 0.1-0.2 was FREE by its nearest beam, but another beam that
     crossed it ended just behind it on something. Seen from 0.1 m back, a return lands in
     the cell (that something's edge, seen from a new place): a change by the nearest beam
     alone, none with the footprint while the earlier end is still seen; a change again when
-    it has gone (a leg that swung on), and from a scanner that has not moved."""
+    it has gone (a leg that swung on), and from a scanner that has not moved. The same when
+    the current scan numbers its beams otherwise (the earlier scan's beams are read at
+    their own angles)."""
     back = (-0.1, 0.0, 0.0)
     in_cell = math.hypot(3.15, 0.165)               # from (-0.1, 0): (3.05, 0.165) world
     still_there = math.hypot(3.218, 0.109)          # the earlier end (3.118, 0.109), again
     now = {3: in_cell, 2: still_there}
-    assert _changed_cell(False, np.array(back), now, (3.05, 0.165))
-    assert not _changed_cell(True, np.array(back), now, (3.05, 0.165))
-    assert _changed_cell(True, np.array(back), {3: in_cell}, (3.05, 0.165))
+    k = more_beams
+    assert _changed_cell(False, np.array(back), now, (3.05, 0.165), k)
+    assert not _changed_cell(True, np.array(back), now, (3.05, 0.165), k)
+    assert _changed_cell(True, np.array(back), {3: in_cell}, (3.05, 0.165), k)
     here = np.zeros(3)                              # the same place: (3.05, 0.16)
-    assert _changed_cell(True, here, {3: math.hypot(3.05, 0.16), 2: 3.12}, (3.05, 0.16))
+    assert _changed_cell(True, here, {3: math.hypot(3.05, 0.16), 2: 3.12}, (3.05, 0.16), k)
 
 
 def _with_returns(scan: Scan, returns: dict) -> Scan:

@@ -9,7 +9,7 @@ import pytest
 from laser_tracker.conversions import header
 from laser_tracker.core.scan import Scan
 from laser_tracker.tools import driving_scenes as D
-from laser_tracker.tools.annotations import read_annotations
+from laser_tracker.tools.annotations import HIDDEN_TOPIC, read_annotations
 from laser_tracker.tools.bag import FACTORY, BagWriter, read_scans
 
 PERIOD = 1 / 7.5
@@ -120,7 +120,7 @@ def test_people_stand_in_the_driving_scans_where_the_standing_robot_saw_them(tmp
                                  tmp_path / 'scene', poses=_poses())
     # runs of 10 after START scans; the GAP scans after a run left out; ends with the last
     assert info['runs'] == 2 and info['scans'] == D.START + 20
-    assert info['annotations'] == 20 and info['people'] == 2
+    assert info['annotations'] == 20 and info['people'] == 2 and info['hidden'] == 0
     scans = list(read_scans(tmp_path / 'scene', '/scan'))
     assert len(scans) == D.START + 20
     assert all(np.isinf(s.ranges).all() for s in scans[:D.START])
@@ -163,7 +163,10 @@ def test_a_person_behind_the_buildings_wall_is_not_annotated(tmp_path):
     _driving(tmp_path / 'driving', wall=1.5)
     info = D.write_driving_scene(tmp_path / 'positive', tmp_path / 'driving', '/left_scan',
                                  tmp_path / 'scene', poses=_poses())
-    assert info['runs'] == 1 and info['annotations'] == 0
+    assert info['runs'] == 1 and info['annotations'] == 0 and info['hidden'] == 10
+    out_of_sight = read_annotations(tmp_path / 'scene', HIDDEN_TOPIC, scan_topic='/scan')
+    assert out_of_sight.x.size == 10                        # where it stands, behind the wall
+    assert np.allclose(out_of_sight.x, 2.0) and np.allclose(out_of_sight.y, 0.0, atol=1e-9)
     scans = list(read_scans(tmp_path / 'scene', '/scan'))
     ahead = np.abs(scans[-1].angles) < 1.0                  # the wall, as the robot saw it
     assert np.allclose(scans[-1].ranges[ahead], 1.5 / np.cos(scans[-1].angles[ahead]),

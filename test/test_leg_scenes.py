@@ -183,6 +183,19 @@ def test_pooled_rows_add_the_counts_before_the_ratios():
     assert row['walking_recall'] == pytest.approx(0.9)
 
 
+def test_pooled_scenes_say_how_many_false_positives_lie_on_people_out_of_sight():
+    part = dict(objects=100, misses=10, fp=5, switches=1, walking_objects=50,
+                walking_misses=5, walking_fp=5, walking_switches=0, confirmed=3, scans=90,
+                outside_area=1, replay_s=1.0)
+    row = pooled([dict(part, fp_hidden=3), dict(part, fp_hidden=1)])
+    assert row['fp_hidden'] == 4
+    assert headline(row) == ('MOTA 0.840, recall 0.900 (walking 0.900), 10 false positives '
+                             '(4 on people out of sight), 2 switches')
+    # a scene without that knowledge (no hidden topic) leaves the pooled count out
+    mixed = pooled([dict(part, fp_hidden=3), part])
+    assert 'fp_hidden' not in mixed and '(' not in headline(mixed).split('positives')[1]
+
+
 def test_pooled_scanners_with_nobody_in_view_add_their_false_tracks():
     parts = [dict(scans=435, confirmed=c, false=c, minutes=0.97, replay_s=1.0)
              for c in (1, 0, 3)]

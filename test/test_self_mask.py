@@ -9,7 +9,7 @@ import pytest
 
 from laser_tracker.config import ConfigError
 from laser_tracker.conversions import decode_body, encode_body
-from laser_tracker.core.scan import Scan
+from laser_tracker.core.scan import Scan, beams_jitter, geometry_of, nearest_beams
 from laser_tracker.core.self_mask import SelfMask, SelfMaskConfig, footprint_polygon
 from laser_tracker.tools.data import real_recording
 
@@ -73,6 +73,50 @@ def test_a_person_next_to_the_robot_is_never_hidden():
     person = {5: 0.6, 6: 0.6, 7: 0.62, 100: 0.5, 101: 0.5}
     masked = mask.mask(scan_at(31, person=person))
     assert not masked[[5, 6, 7, 100, 101]].any()
+
+
+def on_beams(scan: Scan, more: int, first_shift: int = 0) -> Scan:
+    """``scan`` as a driver that publishes each revolution's samples as they came would:
+    ``more`` beams more (or fewer) over its field, the increment recomputed to fit, the
+    first ``first_shift`` beams later; each beam reads the nearest beam of ``scan``."""
+    n = scan.n_beams + more
+    first = scan.angle_min + first_shift * scan.angle_increment
+    inc = (scan.angles[-1] - first) / (n - 1)
+    angles = first + inc * np.arange(n)
+    nearest = np.clip(np.rint((angles - scan.angle_min) / scan.angle_increment), 0,
+                      scan.n_beams - 1).astype(int)
+    return Scan(stamp=scan.stamp, ranges=scan.ranges[nearest], angle_min=first,
+                angle_increment=inc, range_min=scan.range_min, range_max=scan.range_max)
+
+
+def test_beams_that_jitter_are_told_from_another_configuration():
+    base = (float(ANGLES[0]), float(ANGLES[1] - ANGLES[0]), N)
+    for more, shift in ((3, 0), (-3, 0), (1, 1), (-2, -1)):
+        assert beams_jitter(base, geometry_of(on_beams(scan_at(0), more, shift)))
+    assert not beams_jitter(base, (base[0], base[1] * 2, (N + 1) // 2))      # half the beams
+    assert not beams_jitter(base, (base[0] + 0.3, base[1], N - 60))          # 30 deg less
+    assert not beams_jitter(base, (-base[0], -base[1], N))                   # turned over
+    index, inside = nearest_beams(base, (base[0] - base[1], base[1], N))     # one beam before
+    assert not inside[0] and inside[1:].all() and (index[1:] == np.arange(N - 1)).all()
+
+
+def test_the_body_stays_learnt_while_the_beam_count_changes_from_scan_to_scan():
+    """A driver whose beam count varies by a few from scan to scan: the body learnt on one
+    scan's beams is carried to the next scan's (nearest beam), not learnt afresh each time;
+    a scanner set to another resolution starts afresh."""
+    mask = SelfMask(SelfMaskConfig(travel=2.0))
+    rng = np.random.default_rng(0)
+    for k in range(40):
+        more = int(rng.integers(-3, 4))
+        mask.learn(on_beams(scan_at(k), more, int(rng.integers(-1, 2))), (0.1, 0.0, 0.0))
+    for more in (-3, 0, 3):
+        scan = on_beams(scan_at(40), more)
+        masked = mask.mask(scan)
+        body = scan.ranges < 0.45
+        assert body.sum() >= 11 and masked[body].all()
+        assert masked.sum() <= body.sum() + 6                  # the body and its edge beams
+    half = scan_at(40).every_nth_beam(2)
+    assert not mask.mask(half).any()                           # another configuration
 
 
 def test_a_wall_the_robot_drives_along_is_not_learnt():

@@ -306,7 +306,19 @@ def _shaded(free, rays, reach, meta, buffer, p, maps, k, stack, current, here, c
     m = cells + 2 * PAD
     half = cells / 2.0
     shaded = False
-    for b in range(rays[1, p], rays[2, p] + 1):
+    lo, hi = rays[1, p], rays[2, p]
+    if current >= 0 and lo <= hi < meta[current, 6] and (
+            meta[current, 4] != meta[buffer, 4] or meta[current, 5] != meta[buffer, 5]
+            or meta[current, 6] != meta[buffer, 6]):
+        # the ray table's beams are the current scan's: the earlier scan's beams at their
+        # angles (a driver whose beam count varies from scan to scan)
+        last = meta[buffer, 6] - 1
+        a = round((meta[current, 4] + lo * meta[current, 5] - meta[buffer, 4])
+                  / meta[buffer, 5])
+        z = round((meta[current, 4] + hi * meta[current, 5] - meta[buffer, 4])
+                  / meta[buffer, 5])
+        lo, hi = int(max(min(a, z), 0.0)), int(min(max(a, z), last))
+    for b in range(lo, hi + 1):
         f = np.float64(free[buffer, b])
         if not (f > 0.0 and not need < f):
             continue

@@ -135,3 +135,45 @@ class Scan:
             no_return = np.isposinf(r) | (np.isfinite(r) & (r >= self.range_max))
         out[no_return] = limit
         return out
+
+
+#: Largest relative change of the angle between beams, and share of the field of view lost
+#: at its ends, for which two scans count as one scanner's beams jittering rather than a
+#: scanner set to another resolution or field of view: drivers that publish each
+#: revolution's measurements as they came (YDLIDAR's ROS 2 driver, RPLIDAR without
+#: ``angle_compensate``) vary the beam count by a few in a thousand and move the ends by a
+#: beam, a reconfigured scanner changes its resolution by a factor of 2 or its field by
+#: degrees.
+SAME_BEAMS_TOLERANCE = 0.05
+
+#: A scan's beams: (angle_min, angle_increment, beam count).
+BeamGeometry = tuple
+
+
+def geometry_of(scan: Scan) -> BeamGeometry:
+    return (float(scan.angle_min), float(scan.angle_increment), scan.n_beams)
+
+
+def beams_jitter(old: BeamGeometry, new: BeamGeometry,
+                 tolerance: float = SAME_BEAMS_TOLERANCE) -> bool:
+    """Whether ``new`` is ``old``'s scanner with its beams jittering (see
+    ``SAME_BEAMS_TOLERANCE``): the same sense of turn, the increment within ``tolerance``
+    of ``old``'s, and ``new``'s field covering ``old``'s but for that share of it."""
+    a0, inc, n = old
+    b0, binc, m = new
+    if not inc * binc > 0 or abs(binc / inc - 1.0) > tolerance:
+        return False
+    lo, hi = sorted((a0, a0 + inc * (n - 1)))
+    blo, bhi = sorted((b0, b0 + binc * (m - 1)))
+    span = hi - lo
+    return span > 0 and min(hi, bhi) - max(lo, blo) >= (1.0 - tolerance) * span
+
+
+def nearest_beams(old: BeamGeometry, new: BeamGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Per beam of ``new``: the index of ``old``'s beam nearest to it in angle, and whether
+    it lies within half a beam of ``old``'s field (else the index is meaningless)."""
+    a0, inc, n = old
+    angles = beam_table(*new)[0]
+    nearest = np.rint((angles - a0) / inc)
+    inside = (nearest >= 0) & (nearest < n)
+    return np.where(inside, nearest, 0).astype(np.intp), inside

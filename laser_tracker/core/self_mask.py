@@ -58,7 +58,7 @@ import numpy as np
 
 from laser_tracker.config import ConfigError, param
 from laser_tracker.core import jit
-from laser_tracker.core.scan import Scan, beam_table
+from laser_tracker.core.scan import Scan, beam_table, beams_jitter, geometry_of, nearest_beams
 
 #: Points closer than this (m) along the scan are one surface (for "lies within reach").
 SURFACE_JUMP = 0.15
@@ -239,15 +239,24 @@ class SelfMask:
 
     # ------------------------------------------------------------------ state
     def fit(self, scan: Scan) -> None:
-        """Per-beam state for the scan's geometry (a new geometry starts afresh)."""
-        key = (scan.angle_min, scan.angle_increment, scan.ranges.size)
+        """Per-beam state for the scan's geometry. A new geometry starts afresh, unless it
+        is the same scanner's beams jittering (``core.scan.beams_jitter``: a driver whose
+        beam count changes from scan to scan), whose state each beam takes from the beam
+        of the previous geometry nearest to it: the body is near, half a beam's width is
+        millimetres there."""
+        key = geometry_of(scan)
         if key == self._geometry:
             return
+        old, before = self.state, self._geometry
         self._geometry = key
         n = scan.n_beams
         self.state = np.zeros((RANGES + 1, n))
         self.state[[ANCHOR, BODY]] = np.nan
         self.state[LIMITS] = self._footprint_limits(scan)
+        if before is not None and beams_jitter(before, key):
+            index, inside = nearest_beams(before, key)
+            for row in (ANCHOR, KEPT, BODY, BEYOND):
+                self.state[row, inside] = old[row, index[inside]]
         self.settings[_STALE] = 1.0
 
     anchor = _state_row(ANCHOR, 'The range each beam\'s return keeps.')

@@ -54,6 +54,15 @@ Person following (:func:`score_following`)
        replaced by them; the others stay remembered (across frames where they are absent).
 
     ``objects = tracked + ID switches + misses``; MOTA and MOTP as in the script.
+
+People out of sight (``HIDDEN_TOPIC``, optional)
+    Where a recording knows where people are whom no beam sees (a composite that puts
+    labelled people into another recording knows which of them its building hides), it may
+    carry them on ``/ground_truth_people_hidden`` (the same Person messages). They are not
+    scored: a track on one is still a false positive, as annotators of the people in view
+    would count it, but such false positives are counted apart
+    (``false_positives_on_hidden``): a track that follows a person through an occlusion is
+    where that person is.
 """
 from __future__ import annotations
 
@@ -70,6 +79,7 @@ from laser_tracker.tools.bag import ScanTimes
 log = logging.getLogger(__name__)
 
 ANNOTATION_TOPIC = '/ground_truth_people_tracks'
+HIDDEN_TOPIC = '/ground_truth_people_hidden'
 PERSON_MSGTYPE = 'leg_tracker/msg/Person'
 PERSON_DEFINITION = 'geometry_msgs/Pose pose\nuint32 id\n'
 LAST_SCAN_PERIODS = 1.5
@@ -508,6 +518,26 @@ def _in_sector(x: np.ndarray, y: np.ndarray, sector) -> np.ndarray:
     return (bearing >= sector[0]) & (bearing <= sector[1])
 
 
+def _hidden_people(bag, scans: ScanTimes, frame: np.ndarray, replay, sector
+                   ) -> Frames | None:
+    """The people out of sight (``HIDDEN_TOPIC``) at the scored frames, in the frame the
+    tracks are scored in; None for a recording without them (module docstring)."""
+    from laser_tracker.tools.bag import topics
+
+    info = topics(bag).get(HIDDEN_TOPIC)
+    if info is None:
+        return None
+    if not info[1]:
+        return Frames.of([], [], [], [])
+    hid = read_annotations(bag, HIDDEN_TOPIC, scans)
+    if replay.summary.get('scanner_mount', {}).get('mirrored'):
+        hid = hid.mirrored()
+    if sector is not None:
+        hid = hid.select(_in_sector(hid.x, hid.y, sector))
+    hid = hid.select(frame[hid.scan] >= 0)
+    return Frames.of(frame[hid.scan], hid.obj_id, hid.x, hid.y)
+
+
 def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                        scan_topic: str | None = None, persons=None,
                        area=None, sector=None) -> AnnotatedEvaluation:
@@ -601,6 +631,13 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
     follow = score_following(n_frames, people, tracks, config.threshold)
     mot, err_all, err_walk, verdicts = score_clear_mot(n_frames, people, walking, tracks,
                                                        config.threshold)
+    hidden = _hidden_people(bag, scans, frame, replay, sector)
+    on_hidden = None
+    if hidden is not None:
+        fp = verdicts.kind == 'FP'
+        on_hidden = int(_near_annotation(verdicts.frame[fp], verdicts.track_xy[fp, 0],
+                                         verdicts.track_xy[fp, 1], hidden,
+                                         config.threshold).sum())
     fd = follow.as_dict()
     comparable = {'objects': len(ann),
                   'tracked': fd['tracked'], 'id_switches': fd['id_switches'],
@@ -620,7 +657,8 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                         'outside_sector': beside,
                         'walking': int((walking & ~unknown_speed).sum()),
                         'standing': int((~walking).sum()),
-                        'speed_unknown': int(unknown_speed.sum())},
+                        'speed_unknown': int(unknown_speed.sum()),
+                        'hidden': None if hidden is None else int(hidden.frame.size)},
         'tracks_scored': int(np.unique(t.track_id).size),
         'area': None if area is None else [float(v) for v in area],
         'sector_deg': None if sector is None else [float(v) for v in sector],
@@ -628,6 +666,7 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
         'following': fd,
         'following_all_annotations': comparable,
         'clear_mot': mot,
+        'false_positives_on_hidden': on_hidden,
         'position_error': {'all': error_stats(err_all), 'walking': error_stats(err_walk)},
     }
     return AnnotatedEvaluation(result, np.column_stack((ox, oy)), a.obj_id, walking,

@@ -396,8 +396,9 @@ def _reversed(work: Path, names, with_detector: bool) -> dict:
     noise models and the draws of ``freiburg_other_noise`` too (eight replays), MIT, the
     three scanners of ``negative_2_inf``, and the people of the leg-labelled scenes and of
     the driving scenes, each scene's annotations after their scan."""
-    from laser_tracker.tools.annotations import ANNOTATION_TOPIC, register_person_type
-    from laser_tracker.tools.bag import TYPESTORE
+    from laser_tracker.tools.annotations import (ANNOTATION_TOPIC, HIDDEN_TOPIC,
+                                                 register_person_type)
+    from laser_tracker.tools.bag import TYPESTORE, topics
     from laser_tracker.tools.reverse import write_reversed
 
     def backwards(bag: Path, attached=()) -> Path:
@@ -431,8 +432,9 @@ def _reversed(work: Path, names, with_detector: bool) -> dict:
         work, ['leg_scenes_driving_inf'] * ('leg_scenes_driving_inf_reversed' in wanted),
         with_detector))
     for name, parts in scenes.items():
-        found[f'{name}_reversed'] = [(backwards(bag, (ANNOTATION_TOPIC,)), '/scan', 'scene',
-                                      extra) for bag, extra in parts]
+        found[f'{name}_reversed'] = [
+            (backwards(bag, [t for t in (ANNOTATION_TOPIC, HIDDEN_TOPIC) if t in topics(bag)]),
+             '/scan', 'scene', extra) for bag, extra in parts]
     return found
 
 
@@ -559,6 +561,8 @@ def score(name: str, bag: Path, scan_topic: str, scoring: str, config, out: Path
                         f'{key}fp': m['num_false_positives'],
                         f'{key}switches': m['num_switches']})
         row['outside_area'] = ev['tracks_outside_area']
+        if ev['false_positives_on_hidden'] is not None:
+            row['fp_hidden'] = ev['false_positives_on_hidden']
         return row
     if scoring == 'annotated':
         ev = evaluate_recording(out, bag, scan_topic=scan_topic).result
@@ -632,6 +636,8 @@ def pooled(parts: list[dict]) -> dict:
         row['false_by_part'] = [p['false'] for p in parts]
         return row
     row = {k: sum(p[k] for p in parts) for k in POOLED}
+    if all('fp_hidden' in p for p in parts):
+        row['fp_hidden'] = sum(p['fp_hidden'] for p in parts)
     row['replay_s'] = round(sum(p['replay_s'] for p in parts), 1)
     row['scenes'] = len(parts)
     for key in ('', 'walking_'):
@@ -720,8 +726,9 @@ def headline(row: dict) -> str:
     """The one figure that judges a recording's row (README.md, "Real recordings")."""
     if 'scenes' in row:
         return (f"MOTA {row['mota']:.3f}, recall {row['recall']:.3f} "
-                f"(walking {row['walking_recall']:.3f}), {row['fp']:,} false positives, "
-                f"{row['switches']} switches")
+                f"(walking {row['walking_recall']:.3f}), {row['fp']:,} false positives"
+                + (f" ({row['fp_hidden']:,} on people out of sight)" if 'fp_hidden' in row
+                   else '') + f", {row['switches']} switches")
     if 'tracked' in row:
         return (f"{row['tracked']:,} of {row['annotated']:,} "
                 f"({100 * row['tracked'] / max(row['annotated'], 1):.1f} %), "

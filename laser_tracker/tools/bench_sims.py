@@ -14,7 +14,9 @@ turning that fast, every revolution delivered) and scores them as rows ``NAME@RA
 ``NAME@NOISEm``; ``--spurious 0.005 0.02`` as scanners that report that share of their beams
 at a random range short of the surface (dust, a mixed pixel), rows ``NAME@SHAREspurious``;
 ``--scanner-360 5 10`` as a low-cost 360 deg scanner turning that fast (:data:`LOW_COST_360`),
-rows ``NAME@360degRATEHz``.
+rows ``NAME@360degRATEHz``; ``--beam-count-jitter 2 5`` as scanners whose beam count varies
+by up to that many from scan to scan over the same field (drivers that publish each
+revolution's samples as they came), rows ``NAME@NbeamsJitter``.
 """
 from __future__ import annotations
 
@@ -54,6 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='also the Hokuyo scenarios seen by a low-cost 360 deg scanner '
                         '(360 beams 1 deg apart, 12 m, 3 cm of range noise) turning at these '
                         'rates, rows NAME@360degRATEHz')
+    parser.add_argument('--beam-count-jitter', nargs='+', type=int, default=[], metavar='N',
+                        help='also the Hokuyo scenarios seen by a scanner whose beam count '
+                        'varies by up to N from scan to scan over the same field (YDLIDAR\'s '
+                        'ROS 2 driver, RPLIDAR without angle_compensate), rows '
+                        'NAME@NbeamsJitter')
 
 
 #: The scenarios of a Hokuyo-class scanner, whose head rate ``--scan-rates`` changes.
@@ -137,7 +144,9 @@ def run(args: argparse.Namespace) -> int:
                  [(f'{share:g}spurious', {'spurious_probability': share})
                   for share in args.spurious],
                  [(f'360deg{rate:g}Hz', dict(LOW_COST_360, revolution_hz=rate))
-                  for rate in args.scanner_360]]
+                  for rate in args.scanner_360],
+                 [(f'{n}beamsJitter', {'beam_count_jitter': n})
+                  for n in args.beam_count_jitter]]
         other = [(f'{name}@{suffix}', name, Path(tmp) / f'{name}@{suffix}', scanner)
                  for kind in kinds for name in HOKUYO_SCENARIOS for suffix, scanner in kind]
         for (row, *_), bag in zip(other, pool.map(_simulate, other)):

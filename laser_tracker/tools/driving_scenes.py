@@ -27,7 +27,9 @@ clutter, dropouts and body in view.
   are not carried over.
 * **Annotations.** A person is annotated at its labelled position (two legs: their
   midpoint) in each scan where at least ``MIN_BEAMS`` beams return from its legs; hidden
-  behind the building's own structure it is not.
+  behind the building's own structure (or outside the field of view) it is not, and is
+  written on ``annotations.HIDDEN_TOPIC`` instead, so that a track that follows it there is
+  told apart from one on nothing.
 """
 from __future__ import annotations
 
@@ -165,7 +167,8 @@ def write_driving_scene(positive: str | Path, negative: str | Path, topic: str,
     ``/ground_truth_people_tracks``; module docstring). ``poses``: the driving scanner's
     poses, one per scan (default: :func:`driving_poses`). Returns counts."""
     from laser_tracker.conversions import scan_to_msg
-    from laser_tracker.tools.annotations import ANNOTATION_TOPIC, register_person_type
+    from laser_tracker.tools.annotations import (ANNOTATION_TOPIC, HIDDEN_TOPIC,
+                                                 register_person_type)
     from laser_tracker.tools.bag import FACTORY, TYPESTORE, BagWriter, read_scans
 
     standing, legs = read_labelled(positive)
@@ -193,7 +196,7 @@ def write_driving_scene(positive: str | Path, negative: str | Path, topic: str,
         source[at:at + run.size], anchor[at:at + run.size] = run, at
         at, placed = at + run.size + GAP, placed + 1
     register_person_type(TYPESTORE)
-    annotated, shown = 0, set()
+    annotated, hidden, shown = 0, 0, set()
     last = int(np.flatnonzero(source >= 0).max()) if placed else START - 1
     written = 0
     with BagWriter(dst) as bag:
@@ -228,11 +231,13 @@ def write_driving_scene(positive: str | Path, negative: str | Path, topic: str,
             bag.write(SCENE_SCAN_TOPIC, scan_to_msg(FACTORY, scan), t_ns)
             written += 1
             for m in range(rows.size):
-                if seen[m] >= MIN_BEAMS:
-                    bag.write(ANNOTATION_TOPIC, person_msg(
-                        FACTORY, TYPESTORE, local[m], int(people.person[rows[m]])),
-                        t_ns + 1000)
+                in_view = seen[m] >= MIN_BEAMS
+                bag.write(ANNOTATION_TOPIC if in_view else HIDDEN_TOPIC, person_msg(
+                    FACTORY, TYPESTORE, local[m], int(people.person[rows[m]])), t_ns + 1000)
+                if in_view:
                     annotated += 1
                     shown.add(int(people.person[rows[m]]))
-    return {'scans': written, 'runs': placed, 'annotations': annotated,
+                else:
+                    hidden += 1
+    return {'scans': written, 'runs': placed, 'annotations': annotated, 'hidden': hidden,
             'people': len(shown), 'area': None}

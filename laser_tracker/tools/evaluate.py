@@ -538,6 +538,10 @@ def format_annotated(result: dict, view: str = 'clear-mot') -> str:
                      f'{_num(mot["walking"][key], fmt):>11}')
     lines.append('  (only the annotated people are labelled: tracks on anyone else are false '
                  'positives here)')
+    if result.get('false_positives_on_hidden') is not None:
+        lines.append(f'  of the false positives, within the threshold of a person out of sight '
+                     f'({_n(a["hidden"])} such positions): '
+                     f'{_n(result["false_positives_on_hidden"])}')
     lines += [''] + format_following(result)
     return '\n'.join(lines)
 

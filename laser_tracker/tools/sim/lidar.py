@@ -82,6 +82,11 @@ class Lidar:
         self.beam_offsets = self.time_increment * np.arange(self.n_beams)
         self.unit = 0.001 if c.range_max <= 8.5 else 0.01
 
+    def beams(self, rng: np.random.Generator) -> tuple[float, float, np.ndarray, np.ndarray]:
+        """One scan's beams: ``(angle_min, angle_increment, angles, time offsets)``, the
+        same in every scan."""
+        return self.angle_min, self.angle_increment, self.angles, self.beam_offsets
+
     def scan_stamps(self, t_start: float, duration: float) -> np.ndarray:
         """Start times of the scans in ``[t_start, t_start + duration)``, on mirror revolutions."""
         c = self.config
@@ -181,6 +186,12 @@ class HokuyoConfig(ScannerMount):
                               max=0.2)
     mixed_shortfall: float = param(0.1, 'Largest shortfall of a mixed return, as a fraction '
                                    'of the range step at the edge.', min=0.0, max=1.0)
+    beam_count_jitter: int = param(
+        0, 'A scan carries up to this many beams more or fewer than beams, spread over the '
+        'same field (the increment recomputed to fit), drawn anew for every scan: drivers '
+        'that publish each revolution\'s samples as they came (YDLIDAR\'s ROS 2 driver, '
+        'RPLIDAR without angle_compensate), whose count follows the head\'s speed. 0 = the '
+        'same beams in every scan.', min=0, max=100)
 
 
 class Hokuyo:
@@ -200,6 +211,19 @@ class Hokuyo:
         self.unit = c.unit
         self.no_return_reading = {'zero': 0.0, 'range_max': c.range_max,
                                   'inf': math.inf, 'mixed': math.inf}[c.no_return]
+
+    def beams(self, rng: np.random.Generator) -> tuple[float, float, np.ndarray, np.ndarray]:
+        """One scan's beams: ``(angle_min, angle_increment, angles, time offsets)``; with
+        ``beam_count_jitter`` a count drawn from ``rng`` over the same field and sweep time."""
+        jitter = self.config.beam_count_jitter
+        if not jitter:
+            return self.angle_min, self.angle_increment, self.angles, self.beam_offsets
+        n = self.n_beams + int(rng.integers(-jitter, jitter + 1))
+        scale = (self.n_beams - 1) / (n - 1)
+        k = np.arange(n)
+        return (self.angle_min, self.angle_increment * scale,
+                self.angle_min + self.angle_increment * scale * k,
+                self.time_increment * scale * k)
 
     def scan_stamps(self, t_start: float, duration: float) -> np.ndarray:
         """Start times of the scans in ``[t_start, t_start + duration)``, on revolutions."""

@@ -80,15 +80,17 @@ class Recording:
 
 
 def _rngs(seed: int):
-    """Independent random streams for the sensor and the odometry (the scene uses [seed, 0])."""
-    return np.random.default_rng([seed, 1]), np.random.default_rng([seed, 2])
+    """Independent random streams for the sensor, the odometry and the sensor's beams of
+    each scan (the scene uses [seed, 0])."""
+    return (np.random.default_rng([seed, 1]), np.random.default_rng([seed, 2]),
+            np.random.default_rng([seed, 3]))
 
 
 def record(scenario: Scenario) -> Recording:
     """Simulate ``scenario``: deterministic from its seed."""
     lidar = make_scanner(scenario.lidar)
     lc = scenario.lidar
-    lidar_rng, odom_rng = _rngs(scenario.seed)
+    lidar_rng, odom_rng, beams_rng = _rngs(scenario.seed)
     seg_static = scenario.world.segments
     circ_static = scenario.world.circles
     static_sets_seg = [(seg_static, np.zeros(len(seg_static), dtype=np.int64))]
@@ -101,12 +103,13 @@ def record(scenario: Scenario) -> Recording:
     stamps = lidar.scan_stamps(scenario.scan_start, scenario.duration)
     scans, truth, owners_all = [], [], []
     for stamp in stamps:
-        times = stamp + lidar.beam_offsets
+        angle_min, increment, angles, offsets = lidar.beams(beams_rng)
+        times = stamp + offsets
         base = scenario.platform.pose(times)                          # (N, 3)
         c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
         origins = np.column_stack([base[:, 0] + c * mount[0] - s * mount[1],
                                    base[:, 1] + s * mount[0] + c * mount[1]])
-        beam_dir = base[:, 2] + mount[2] + lidar.angles
+        beam_dir = base[:, 2] + mount[2] + angles
         directions = np.column_stack([np.cos(beam_dir), np.sin(beam_dir)])
 
         present = [a for a in scenario.agents if a.trajectory.exists(stamp)]
@@ -126,9 +129,10 @@ def record(scenario: Scenario) -> Recording:
         ranges, returned = lidar.measure(true_ranges, lidar_rng, incidence)
         owner = np.where(returned, owner, -1)
         owners_all.append(owner)
-        scans.append(Scan(stamp=float(stamp), ranges=ranges, angle_min=lidar.angle_min,
-                          angle_increment=lidar.angle_increment, range_min=lc.range_min,
-                          range_max=lc.range_max, time_increment=lidar.time_increment,
+        scans.append(Scan(stamp=float(stamp), ranges=ranges, angle_min=angle_min,
+                          angle_increment=increment, range_min=lc.range_min,
+                          range_max=lc.range_max,
+                          time_increment=float(offsets[1]) if offsets.size > 1 else 0.0,
                           scan_time=lidar.scan_time, frame_id=lc.frame_id))
 
         objects = []
