@@ -14,13 +14,15 @@ ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'exp1_stationary_single_walker'
 
 
-def _bag_messages():
+def _bag_messages(bag=BAG):
     from laser_tracker.tools.bag import iter_messages
-    return list(iter_messages(BAG, ['/scan', '/odom']))
+    return list(iter_messages(bag, ['/scan', '/odom']))
 
 
 def _offline_tracks(messages):
-    """Confirmed tracks per scan stamp from the offline pipeline fed in bag order."""
+    """Confirmed tracks per scan stamp from the offline pipeline fed in bag order, as the
+    tracking stage reports them (a coasting track whose place the scan sees empty is not:
+    ``hypotheses.seen_empty_radius``)."""
     from laser_tracker.conversions import odometry_from_msg, scan_from_msg
     from laser_tracker.core.pipeline import Pipeline
 
@@ -32,11 +34,11 @@ def _offline_tracks(messages):
             pipeline.add_odometry(odo.stamp, odo.pose)
         else:
             res = pipeline.step(scan_from_msg(msg))
-            h = res.hypotheses
-            keep = h.confirmed
+            t = pipeline.tracker.tracks()
+            keep = t.confirmed
             out[round(res.stamp, 6)] = sorted(
-                zip(h.track_id[keep].tolist(), h.position[keep, 0].tolist(),
-                    h.position[keep, 1].tolist()))
+                zip(t.track_id[keep].tolist(), t.position[keep, 0].tolist(),
+                    t.position[keep, 1].tolist()))
     return out
 
 
@@ -159,6 +161,45 @@ def test_node_graph_publishes_the_offline_tracks(ros_context):
         assert all(math.isfinite(v) for v in cmd.position)
     finally:
         graph.close()
+
+
+def test_a_scanner_whose_beam_count_changes_every_scan_crosses_the_graph_as_offline(
+        ros_context, tmp_path):
+    """The robot's drive seen by a scanner whose driver publishes 765 to 771 beams a scan:
+    the body that ego_motion learns on one scan's beams and carries to the next reaches
+    detection for the beams of each scan (``self_mask`` in ``ego_motion/status``), and the
+    graph publishes the offline tracks (the first 12 s of the drive)."""
+    from laser_tracker.tools.bench_sims import simulate_scanner
+
+    bag = simulate_scanner('driving_past_people', tmp_path / 'jitter', beam_count_jitter=3)
+    messages = _bag_messages(bag)
+    first = messages[0][2].header.stamp.sec
+    messages = [m for m in messages if m[2].header.stamp.sec < first + 12]
+    assert len({len(m.ranges) for t, _, m in messages if t == '/scan'}) > 1
+    expected = _offline_tracks(messages)
+    assert any(expected.values()), 'the recording should yield confirmed tracks'
+    from diagnostic_msgs.msg import DiagnosticArray
+    from laser_tracker.conversions import decode_body
+
+    beams = {round(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, 6): len(m.ranges)
+             for t, _, m in messages if t == '/scan'}
+    graph = _Graph(ros_context)
+    status = []
+    graph.io.create_subscription(DiagnosticArray, 'ego_motion/status', status.append, 100)
+    try:
+        graph.wait_connected()
+        graph.play(messages, outputs=(status,))
+        assert_tracks_equal(graph.tracks, expected, atol=1e-6)
+    finally:
+        graph.close()
+    sizes = set()
+    for msg in status:
+        body = decode_body({kv.key: kv.value for kv in msg.status[0].values}['self_mask'])
+        if body is not None:
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            assert body.size == beams[round(stamp, 6)]           # the beams of its own scan
+            sizes.add(body.size)
+    assert len(sizes) >= 3                  # the learnt body, on scans of several counts
 
 
 def test_bad_scans_are_skipped_and_tracking_continues(ros_context):
