@@ -168,6 +168,10 @@ def test_the_hokuyo_returns_mixed_ranges_just_past_a_nearer_edge():
                                    spurious_probability=0.0)).measure(
         true, np.random.default_rng(0))
     assert plain[100:106] == pytest.approx(6.0, abs=1e-9)
+    # a sweep of twice the spacing (a jittering beam count changes it): half as many beams
+    wide, _ = h.measure(true, np.random.default_rng(0), increment=2 * h.angle_increment)
+    assert (6.0 - wide[100:103] > 0).all()
+    assert wide[103:110] == pytest.approx(6.0, abs=1e-9)
 
 
 def test_the_mixed_returns_past_the_body_edge_make_tracks_unless_masked(tmp_path_factory):
@@ -387,3 +391,27 @@ def test_the_low_cost_360_degree_scanner_of_bench_sims_is_what_its_rows_say(tmp_
     assert (first.ranges < 0.8).sum() >= 5                     # the robot's own parts
     summary = replay_bag(bag, progress=False)
     assert summary['range_noise'] == pytest.approx(0.03, rel=0.25)
+
+
+def test_bench_sims_options_name_the_scanner_each_row_simulates():
+    """Each scanner option of ``bench sims`` turns its values into rows named after them,
+    each simulating the Hokuyo fields the option's help promises."""
+    import argparse
+
+    from laser_tracker.tools.bench_sims import LOW_COST_360, add_arguments, other_scanners
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(['--scan-rates', '10', '40', '--range-noise', '0.03',
+                              '--spurious', '0.02', '--scanner-360', '5',
+                              '--beam-count-jitter', '3'])
+    assert other_scanners(args) == [
+        ('10Hz', {'revolution_hz': 10.0, 'skip': 0}),
+        ('40Hz', {'revolution_hz': 40.0, 'skip': 0}),
+        ('0.03m', {'noise_sigma': 0.03}),
+        ('0.02spurious', {'spurious_probability': 0.02}),
+        ('360deg5Hz', dict(LOW_COST_360, revolution_hz=5.0)),
+        ('3beamsJitter', {'beam_count_jitter': 3})]
+    assert other_scanners(parser.parse_args([])) == []
+    with pytest.raises(SystemExit):                 # a jitter is a whole number of beams
+        parser.parse_args(['--beam-count-jitter', '1.5'])

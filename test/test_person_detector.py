@@ -248,6 +248,38 @@ def test_wide_objects_and_thresholds():
     assert default.threshold == 0.7 and default.partner_threshold == 0.35
 
 
+def _leg_at(bearing_deg, distance=1.4, radius=0.06):
+    """A leg (x, y, radius) at this bearing (deg) and distance (m) from the scanner."""
+    b = np.radians(bearing_deg)
+    return (distance * np.cos(b), distance * np.sin(b), radius)
+
+
+def test_a_segment_cut_by_the_edge_of_the_field_of_view_is_no_lone_leg():
+    """A segment that reaches the edge of a 180 deg scanner's view may go on beyond it: the
+    end of a wall the robot drives along, cut there, is no person on its own (it is, by its
+    width, with view_edge false), but a leg cut there still pairs with the whole leg beside
+    it; a leg a few degrees inside the view is a leg, and a 360 deg scanner has no edge."""
+    edge = PersonDetector(PersonDetectorConfig(), width_classifier())
+    plain = PersonDetector(PersonDetectorConfig(view_edge=False), width_classifier())
+    wall_end = scene(walls=[(-2.0, -1.4, 0.15, -1.4)])      # seen from -90 deg to -84 deg
+    assert plain.detect(wall_end).count == 1
+    out = edge.detect(wall_end)
+    assert out.count == 0 and out.leg_probability.tolist() == [edge.partner_threshold]
+    for bearing in (-89.0, 89.0):                                        # either edge
+        assert plain.detect(scene([_leg_at(bearing)])).count == 1
+        assert edge.detect(scene([_leg_at(bearing)])).count == 0
+    pair = edge.detect(scene([_leg_at(-89.0), _leg_at(-79.0)]))          # 0.24 m apart
+    assert pair.count == 1 and (pair.legs[0] >= 0).all()
+    kept = edge.detect(scene([_leg_at(-75.0)]))
+    assert kept.count == 1 and kept.leg_probability == pytest.approx([P_LEG])
+    n = 720
+    seam_leg = _leg_at(-179.8)
+    round_scan = scene([seam_leg], walls=box(0.0, 3.0, 0.4), n_beams=n,
+                       fov=2 * np.pi * (n - 1) / n, angle_min=-np.pi)
+    found = edge.detect(round_scan).xy
+    assert (np.hypot(found[:, 0] - seam_leg[0], found[:, 1] - seam_leg[1]) < 0.25).any()
+
+
 def test_disabled_detector_reports_nothing_and_needs_no_model(tmp_path):
     legs = scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)])
     det = PersonDetector(PersonDetectorConfig(enabled=False), width_classifier())

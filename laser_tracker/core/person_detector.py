@@ -48,7 +48,7 @@ from laser_tracker.core.detections import Rows
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.segmentation import (FEATURE_NAMES, FEATURE_SET, Clusters,
                                              SegmentConfig, _clusters, as_clusters,
-                                             kernel_arguments)
+                                             closes_circle, kernel_arguments)
 from laser_tracker.errors import InputFileError
 
 log = logging.getLogger(__name__)
@@ -284,6 +284,14 @@ class PersonDetectorConfig:
                              'make tracks that nothing confirms.', min=0.1, max=100.0)
     max_legs: int = param(32, 'At most this many leg candidates per scan (the most probable) '
                           'are paired: bounds the work in a crowd.', min=2, max=1000)
+    view_edge: bool = param(
+        True, 'A segment that reaches the edge of the field of view (its first or last point '
+        'is the first or last beam of a scanner that does not see all around) may go on '
+        'beyond it, so its shape says little: its leg probability counts at most as much as '
+        'a second leg needs (partner_threshold). It still completes a person with a whole '
+        'leg beside it, but is no person alone: the wall the robot drives along, cut where '
+        'the field of view ends, keeps its place beside the robot and looks like a lone leg. '
+        'false = classified as any other segment.')
 
 
 @dataclass
@@ -315,6 +323,15 @@ class PersonDetections(Rows):
                    confidence=np.zeros(0), legs=np.zeros((0, 2), dtype=np.intp),
                    leg_xy=np.zeros((0, 2)), leg_probability=np.zeros(0),
                    is_leg=np.zeros(0, dtype=bool), occluded=np.zeros((0, 2), dtype=bool))
+
+
+def cut_by_view(scan: Scan, clusters: Clusters) -> np.ndarray:
+    """Per cluster: it reaches the edge of the field of view (its first or last point is
+    the scan's first or last beam: it may go on beyond); never for a scan that closes the
+    circle."""
+    if closes_circle(scan.n_beams, float(scan.angle_increment)):
+        return np.zeros(len(clusters), bool)
+    return (clusters.first == 0) | (clusters.last == scan.n_beams - 1)
 
 
 class PersonDetector:
@@ -359,6 +376,9 @@ class PersonDetector:
         if not c.enabled:
             return PersonDetections.empty(scan.stamp, scan.frame_id)
         clusters, prob = self.classify(scan)
+        if c.view_edge and len(clusters):
+            prob = np.where(cut_by_view(scan, clusters),
+                            np.minimum(prob, self.partner_threshold), prob)
         xy = clusters.xy
         is_leg = prob >= self.threshold
         persons, conf, legs = _people(xy, prob, self.threshold, self.partner_threshold,

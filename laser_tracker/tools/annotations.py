@@ -518,10 +518,19 @@ def _in_sector(x: np.ndarray, y: np.ndarray, sector) -> np.ndarray:
     return (bearing >= sector[0]) & (bearing <= sector[1])
 
 
-def _hidden_people(bag, scans: ScanTimes, frame: np.ndarray, replay, sector
+def _in_sector_only(ann: Annotations, sector) -> tuple[Annotations, int]:
+    """``ann`` within ``sector`` (all for None) and how many positions lie outside it."""
+    if sector is None:
+        return ann, 0
+    seen = _in_sector(ann.x, ann.y, sector)
+    return ann.select(seen), int((~seen).sum())
+
+
+def _hidden_people(bag, scans: ScanTimes, frame: np.ndarray, mirrored: bool, sector
                    ) -> Frames | None:
     """The people out of sight (``HIDDEN_TOPIC``) at the scored frames, in the frame the
-    tracks are scored in; None for a recording without them (module docstring)."""
+    tracks are scored in (``sector`` in that frame); None for a recording without them
+    (module docstring)."""
     from laser_tracker.tools.bag import topics
 
     info = topics(bag).get(HIDDEN_TOPIC)
@@ -530,10 +539,7 @@ def _hidden_people(bag, scans: ScanTimes, frame: np.ndarray, replay, sector
     if not info[1]:
         return Frames.of([], [], [], [])
     hid = read_annotations(bag, HIDDEN_TOPIC, scans)
-    if replay.summary.get('scanner_mount', {}).get('mirrored'):
-        hid = hid.mirrored()
-    if sector is not None:
-        hid = hid.select(_in_sector(hid.x, hid.y, sector))
+    hid, _ = _in_sector_only(hid.mirrored() if mirrored else hid, sector)
     hid = hid.select(frame[hid.scan] >= 0)
     return Frames.of(frame[hid.scan], hid.obj_id, hid.x, hid.y)
 
@@ -568,7 +574,8 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                  'placed by receive time, scans named by header stamp', bag, scans.topic,
                  abs(offset), 'ahead of' if offset > 0 else 'behind')
     ann = read_annotations(bag, topic, scans)
-    if replay.summary.get('scanner_mount', {}).get('mirrored'):
+    mirrored = bool(replay.summary.get('scanner_mount', {}).get('mirrored'))
+    if mirrored:
         # an upside-down scanner's replay is in the frame turned right side up
         ann = ann.mirrored()
         area = None if area is None else (area[0], area[1], -area[3], -area[2])
@@ -581,11 +588,7 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
                                     f'{", ".join(map(str, unknown))} (ids: '
                                     f'{", ".join(map(str, ann.ids()))})')
         ann = ann.select(np.isin(ann.obj_id, list(persons)))
-    beside = 0
-    if sector is not None:
-        seen = _in_sector(ann.x, ann.y, sector)
-        beside = int((~seen).sum())
-        ann = ann.select(seen)
+    ann, beside = _in_sector_only(ann, sector)
     tol = config.stamp_tolerance * median_period(scans.stamps)
     poses, segment, frame, foreign = _scan_frames(replay, scans, tol, bag, replay.folder,
                                                   config)
@@ -631,7 +634,7 @@ def evaluate_annotated(replay, bag, config, topic: str = ANNOTATION_TOPIC,
     follow = score_following(n_frames, people, tracks, config.threshold)
     mot, err_all, err_walk, verdicts = score_clear_mot(n_frames, people, walking, tracks,
                                                        config.threshold)
-    hidden = _hidden_people(bag, scans, frame, replay, sector)
+    hidden = _hidden_people(bag, scans, frame, mirrored, sector)
     on_hidden = None
     if hidden is not None:
         fp = verdicts.kind == 'FP'

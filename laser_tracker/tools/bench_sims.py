@@ -26,6 +26,7 @@ import logging
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 from laser_tracker.tools.atomic import check_output
 from laser_tracker.tools.bench_real import MODES, mode_parameters
@@ -41,26 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--json', metavar='OUT', help='write the figures as JSON')
     parser.add_argument('--markdown', action='store_true', help='print a Markdown table')
     parser.add_argument('--jobs', type=int, default=1, help='replays run in parallel')
-    parser.add_argument('--scan-rates', nargs='+', type=float, default=[], metavar='HZ',
-                        help='also the Hokuyo scenarios (%s) simulated as scanners of these '
-                        'rates, rows NAME@RATEHz' % ', '.join(HOKUYO_SCENARIOS))
-    parser.add_argument('--range-noise', nargs='+', type=float, default=[], metavar='M',
-                        help='also the Hokuyo scenarios simulated as scanners of this range '
-                        'noise (m, one sigma; bundled: 0.01 and 0.015), rows NAME@NOISEm')
-    parser.add_argument('--spurious', nargs='+', type=float, default=[], metavar='SHARE',
-                        help='also the Hokuyo scenarios simulated as scanners that report '
-                        'this share of their beams at a random range short of the surface '
-                        '(dust, a mixed pixel; bundled: 0.0005), rows '
-                        'NAME@SHAREspurious')
-    parser.add_argument('--scanner-360', nargs='+', type=float, default=[], metavar='HZ',
-                        help='also the Hokuyo scenarios seen by a low-cost 360 deg scanner '
-                        '(360 beams 1 deg apart, 12 m, 3 cm of range noise) turning at these '
-                        'rates, rows NAME@360degRATEHz')
-    parser.add_argument('--beam-count-jitter', nargs='+', type=int, default=[], metavar='N',
-                        help='also the Hokuyo scenarios seen by a scanner whose beam count '
-                        'varies by up to N from scan to scan over the same field (YDLIDAR\'s '
-                        'ROS 2 driver, RPLIDAR without angle_compensate), rows '
-                        'NAME@NbeamsJitter')
+    for v in SCANNER_VARIANTS:
+        parser.add_argument(v.option, nargs='+', type=v.kind, default=[], metavar=v.metavar,
+                            help=v.help)
 
 
 #: The scenarios of a Hokuyo-class scanner, whose head rate ``--scan-rates`` changes.
@@ -72,6 +56,51 @@ HOKUYO_SCENARIOS = ('driving_past_people', 'hokuyo_corridor_lobby')
 #: delivered.
 LOW_COST_360 = {'beams': 360, 'steps_per_revolution': 360, 'range_max': 12.0,
                 'noise_sigma': 0.03, 'skip': 0}
+
+class ScannerVariant(NamedTuple):
+    """A command-line option whose values are other scanners for the Hokuyo scenarios."""
+
+    option: str
+    kind: type
+    metavar: str
+    help: str
+    suffix: Callable          # value -> the row's suffix (NAME@SUFFIX)
+    fields: Callable          # value -> the simulated Hokuyo's fields it sets
+
+
+#: The scanners the Hokuyo scenarios are also simulated as.
+SCANNER_VARIANTS = tuple(ScannerVariant(*row) for row in (
+    ('--scan-rates', float, 'HZ',
+     'also the Hokuyo scenarios (%s) simulated as scanners of these rates, rows '
+     'NAME@RATEHz' % ', '.join(HOKUYO_SCENARIOS),
+     lambda rate: f'{rate:g}Hz', lambda rate: {'revolution_hz': rate, 'skip': 0}),
+    ('--range-noise', float, 'M',
+     'also the Hokuyo scenarios simulated as scanners of this range noise (m, one sigma; '
+     'bundled: 0.01 and 0.015), rows NAME@NOISEm',
+     lambda noise: f'{noise:g}m', lambda noise: {'noise_sigma': noise}),
+    ('--spurious', float, 'SHARE',
+     'also the Hokuyo scenarios simulated as scanners that report this share of their '
+     'beams at a random range short of the surface (dust, a mixed pixel; bundled: 0.0005), '
+     'rows NAME@SHAREspurious',
+     lambda share: f'{share:g}spurious', lambda share: {'spurious_probability': share}),
+    ('--scanner-360', float, 'HZ',
+     'also the Hokuyo scenarios seen by a low-cost 360 deg scanner (360 beams 1 deg apart, '
+     '12 m, 3 cm of range noise) turning at these rates, rows NAME@360degRATEHz',
+     lambda rate: f'360deg{rate:g}Hz', lambda rate: dict(LOW_COST_360, revolution_hz=rate)),
+    ('--beam-count-jitter', int, 'N',
+     'also the Hokuyo scenarios seen by a scanner whose beam count varies by up to N from '
+     'scan to scan over the same field (YDLIDAR\'s ROS 2 driver, RPLIDAR without '
+     'angle_compensate), rows NAME@NbeamsJitter',
+     lambda n: f'{n}beamsJitter', lambda n: {'beam_count_jitter': n}),
+))
+
+
+def other_scanners(args: argparse.Namespace) -> list[tuple[str, dict]]:
+    """Per scanner the options ask for (in the order of :data:`SCANNER_VARIANTS`): its row
+    suffix and the simulated Hokuyo's fields it sets."""
+    return [(v.suffix(value), v.fields(value))
+            for v in SCANNER_VARIANTS
+            for value in getattr(args, v.option[2:].replace('-', '_'))]
 
 
 def simulate_scanner(name: str, out: Path, **scanner) -> Path:
@@ -138,17 +167,8 @@ def run(args: argparse.Namespace) -> int:
     results: dict = {}
     with tempfile.TemporaryDirectory(prefix='laser_tracker_bench_rates_') as tmp, \
             ProcessPoolExecutor(max(1, args.jobs)) as pool:
-        kinds = [[(f'{rate:g}Hz', {'revolution_hz': rate, 'skip': 0})
-                  for rate in args.scan_rates],
-                 [(f'{noise:g}m', {'noise_sigma': noise}) for noise in args.range_noise],
-                 [(f'{share:g}spurious', {'spurious_probability': share})
-                  for share in args.spurious],
-                 [(f'360deg{rate:g}Hz', dict(LOW_COST_360, revolution_hz=rate))
-                  for rate in args.scanner_360],
-                 [(f'{n}beamsJitter', {'beam_count_jitter': n})
-                  for n in args.beam_count_jitter]]
         other = [(f'{name}@{suffix}', name, Path(tmp) / f'{name}@{suffix}', scanner)
-                 for kind in kinds for name in HOKUYO_SCENARIOS for suffix, scanner in kind]
+                 for suffix, scanner in other_scanners(args) for name in HOKUYO_SCENARIOS]
         for (row, *_), bag in zip(other, pool.map(_simulate, other)):
             jobs += [(row, mode, args.config, bag) for mode in modes]
         done = pool.map(_job, jobs) if args.jobs > 1 else map(_job, jobs)

@@ -95,9 +95,10 @@ class Lidar:
         t0 = math.ceil(t_start * MIRROR_HZ - 1e-9)
         return (t0 + revolutions) / MIRROR_HZ
 
-    def measure(self, true_ranges: np.ndarray, rng: np.random.Generator, incidence=None):
+    def measure(self, true_ranges: np.ndarray, rng: np.random.Generator, incidence=None,
+                increment: float | None = None):
         """Readings for the true ranges of one sweep (``inf`` = nothing hit); the LMS model
-        ignores the angle of ``incidence``.
+        ignores the angle of ``incidence`` and the sweep's beam ``increment``.
 
         Returns ``(ranges, returned)``: the readings, and which beams report the object they
         hit (not dropped, not spurious, within range). Draws a fixed number of random values
@@ -233,9 +234,11 @@ class Hokuyo:
         return (first + (c.skip + 1) * np.arange(count)) / c.revolution_hz
 
     def measure(self, true_ranges: np.ndarray, rng: np.random.Generator,
-                incidence: np.ndarray | None = None):
+                incidence: np.ndarray | None = None, increment: float | None = None):
         """Readings for the true ranges of one sweep (``inf`` = nothing hit); ``incidence``
-        (N,) is each hit's angle from the surface normal (rad), None for head-on.
+        (N,) is each hit's angle from the surface normal (rad), None for head-on;
+        ``increment`` the sweep's angle between beams (rad; None: the nominal one; a
+        jittering beam count changes it), which sets how many beams an edge partly blocks.
 
         Returns ``(ranges, returned)`` as :meth:`Lidar.measure` (a mixed return beside a
         nearer edge is not a return of the surface it was aimed at); draws a fixed number of
@@ -266,7 +269,8 @@ class Hokuyo:
         r = np.where(in_range, true_ranges, c.range_max) + noise
         mixed = np.zeros(n, bool)
         if c.beam_width > 0:
-            shortfall = mixed_shortfall(true_ranges, self.angle_increment, c.beam_width,
+            shortfall = mixed_shortfall(true_ranges, increment or self.angle_increment,
+                                        c.beam_width,
                                         rng.random(n) * c.mixed_shortfall)
             r = r - shortfall
             mixed = shortfall > 0

@@ -126,7 +126,7 @@ def record(scenario: Scenario) -> Recording:
                 seg_sets.append((seg, np.full(seg.shape[1], a.id, dtype=np.int64)))
         true_ranges, owner, incidence = cast_scene(origins, directions, seg_sets, circ_sets,
                                                    glass)
-        ranges, returned = lidar.measure(true_ranges, lidar_rng, incidence)
+        ranges, returned = lidar.measure(true_ranges, lidar_rng, incidence, increment)
         owner = np.where(returned, owner, -1)
         owners_all.append(owner)
         scans.append(Scan(stamp=float(stamp), ranges=ranges, angle_min=angle_min,
