@@ -239,3 +239,19 @@ def test_a_scan_that_closes_the_circle_is_segmented_around_its_seam():
                  angle_increment=ahead.angle_increment, range_min=ahead.range_min,
                  range_max=ahead.range_max)
     assert np.hypot(*(segment(short).xy - (2.0, 0.0)).T).min() > 0.01
+
+
+def test_a_lone_object_on_the_seam_of_a_360_degree_scan_is_one_cluster_in_beam_order():
+    """A person alone in the open, on the seam of a 360 deg scanner: every return is on
+    them, so no two returns lie apart; their cluster still runs from the last beams to the
+    first ones, with the features of the same leg anywhere else in the scan."""
+    n = 720
+    fov = 2 * np.pi * (n - 1) / n
+    on_seam = segment(scene(circles=((-1.4, 0.0, 0.06),), n_beams=n, fov=fov,
+                            angle_min=-np.pi))
+    elsewhere = segment(scene(circles=((0.0, 1.4, 0.06),), n_beams=n, fov=fov,
+                              angle_min=-np.pi))
+    assert on_seam.count == elsewhere.count == 1
+    assert on_seam.first[0] > on_seam.last[0]
+    np.testing.assert_allclose(on_seam.features, elsewhere.features, atol=0.02)
+    assert on_seam.feature('width')[0] > 0.08

@@ -157,8 +157,10 @@ def seam_beam(ranges, cos, sin, valid_min: float, range_max: float, increment: f
               jump: float) -> int:
     """Where to start a scan that closes the circle (a 360 deg scanner: its last beam beside
     its first) so that no segment straddles its two ends: the first return more than
-    ``jump`` from the return before it, around the circle. 0 for a scan that does not close
-    the circle, or whose two ends already lie apart."""
+    ``jump`` from the return before it, around the circle. When no two are (every return on
+    one object: a person alone in the open), the return after the widest run of beams
+    without one, where that object's two ends lie. 0 for a scan that does not close the
+    circle, or whose two ends already lie apart."""
     if not closes_circle(ranges.size, increment):
         return 0
     beams = np.flatnonzero((ranges >= valid_min) & (ranges < range_max))
@@ -166,7 +168,10 @@ def seam_beam(ranges, cos, sin, valid_min: float, range_max: float, increment: f
         return 0
     x, y = ranges[beams] * cos[beams], ranges[beams] * sin[beams]
     apart = np.flatnonzero(np.hypot(x - np.roll(x, 1), y - np.roll(y, 1)) > jump)
-    if not apart.size or apart[0] == 0:
+    if not apart.size:
+        skipped = np.diff(beams, append=beams[0] + ranges.size)   # to the next return
+        return int(beams[(int(np.argmax(skipped)) + 1) % beams.size])
+    if apart[0] == 0:
         return 0
     return int(beams[apart[0]])
 
