@@ -57,6 +57,7 @@ HOKUYO_SCENARIOS = ('driving_past_people', 'hokuyo_corridor_lobby')
 LOW_COST_360 = {'beams': 360, 'steps_per_revolution': 360, 'range_max': 12.0,
                 'noise_sigma': 0.03, 'skip': 0}
 
+
 class ScannerVariant(NamedTuple):
     """A command-line option whose values are other scanners for the Hokuyo scenarios."""
 
