@@ -280,6 +280,59 @@ def test_a_segment_cut_by_the_edge_of_the_field_of_view_is_no_lone_leg():
     assert (np.hypot(found[:, 0] - seam_leg[0], found[:, 1] - seam_leg[1]) < 0.25).any()
 
 
+def _without(scan: Scan, taken: np.ndarray) -> tuple[Scan, np.ndarray]:
+    """``scan`` with the beams ``taken`` as NaN (the self-mask took them out: the robot's
+    body), and their returns per beam (NaN: none), as detection passes them."""
+    out = Scan(stamp=scan.stamp, ranges=np.where(taken, np.nan, scan.ranges),
+               angle_min=scan.angle_min, angle_increment=scan.angle_increment,
+               range_min=scan.range_min, range_max=scan.range_max)
+    return out, np.where(taken, scan.ranges, np.nan)
+
+
+def test_a_segment_cut_by_the_robots_body_is_no_lone_leg():
+    """A segment whose end the robot's own body hides (the body's returns, taken out of the
+    scan, lie nearer beside it) may go on behind the body: a lone leg-like piece there is no
+    person (it is with masked_edge false), also across a beam without a return and around the
+    seam of a 360 deg scan; a person beside the body, two legs, is still found; and a leg
+    with the body beyond the 0.15 m beside its end, or with the body farther than itself,
+    is a leg."""
+    cut = PersonDetector(PersonDetectorConfig(), width_classifier())
+    plain = PersonDetector(PersonDetectorConfig(masked_edge=False), width_classifier())
+    leg = _leg_at(20.0)                           # 1.4 m away, 2.5 deg either side
+    reach = 2.46 + 5.74                           # deg: its half-width and the body's
+
+    def body_at(bearing):                         # a part of the robot 0.5 m away
+        return _leg_at(bearing, distance=0.5, radius=0.05)
+
+    for side in (-1.0, 1.0):                      # the body on either side of the leg
+        whole = scene([leg, body_at(20.0 + side * (reach + 0.5))])
+        scan, body = _without(whole, whole.ranges < 1.0)
+        assert plain.detect(scan, body).count == 1
+        out = cut.detect(scan, body)
+        assert out.count == 0 and out.leg_probability.max() == cut.partner_threshold
+        taken = np.flatnonzero(np.isfinite(body))
+        edge = taken.max() if side < 0 else taken.min()
+        quiet, quiet_body = scan.ranges.copy(), body.copy()
+        quiet[edge], quiet_body[edge] = np.inf, np.nan     # a beam without a return between
+        quiet_scan = Scan(stamp=0.0, ranges=quiet, angle_min=scan.angle_min,
+                          angle_increment=scan.angle_increment, range_min=scan.range_min,
+                          range_max=scan.range_max)
+        assert cut.detect(quiet_scan, quiet_body).count == 0
+        assert cut.detect(scan, body[:-1]).count == 1      # body of another beam count: none
+    two = scene([leg, _leg_at(30.0), body_at(20.0 - reach - 0.5)])
+    pair = cut.detect(*_without(two, two.ranges < 1.0))
+    assert pair.count == 1 and (pair.legs[0] >= 0).all()
+    apart = scene([leg, body_at(20.0 - reach - 8.0)])
+    assert cut.detect(*_without(apart, apart.ranges < 1.0)).count == 1
+    behind = scene([leg, _leg_at(20.0 - reach - 0.5, distance=3.0, radius=0.2)])
+    assert cut.detect(*_without(behind, behind.ranges > 2.0)).count == 1
+    n = 720
+    seam = scene([_leg_at(179.0), body_at(179.0 + reach + 0.5)], n_beams=n,
+                 fov=2 * np.pi * (n - 1) / n, angle_min=-np.pi)
+    scan, body = _without(seam, seam.ranges < 1.0)
+    assert plain.detect(scan, body).count == 1 and cut.detect(scan, body).count == 0
+
+
 def test_disabled_detector_reports_nothing_and_needs_no_model(tmp_path):
     legs = scene([(2.0, 0.15, 0.06), (2.0, -0.15, 0.06)])
     det = PersonDetector(PersonDetectorConfig(enabled=False), width_classifier())

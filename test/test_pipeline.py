@@ -12,6 +12,7 @@ import pytest
 
 from laser_tracker.config import ConfigError
 from laser_tracker.core.difference import PoseQuality
+from laser_tracker.core.person_detector import PersonDetector, PersonDetectorConfig
 from laser_tracker.core.pipeline import Pipeline, PipelineConfig
 from laser_tracker.core.scan import Scan
 from laser_tracker.core.stages import Detector, StampedPose, Tracker
@@ -183,6 +184,29 @@ def test_the_view_keeps_the_returns_of_the_robots_body():
     assert len(det.detections.view) == scan.n_beams
     np.testing.assert_array_equal(det.detections.view.reach[170:190], scan.ranges[170:190])
     np.testing.assert_allclose(det.detections.view.bearing, scan.angles)
+
+
+def test_detection_passes_the_bodys_returns_to_the_person_detector():
+    """The person detector does not see the returns of the robot's body, but learns where
+    they were: a lone leg-like segment that the body cuts is no person (masked_edge), one
+    the body does not touch is."""
+    from test_person_detector import width_classifier
+
+    world = room()
+    moved_by = {}
+    for name, body_bearing in (('cut', 0.14), ('apart', 0.6)):
+        scan = make_scan(world, still(0), 1.0, [(1.4, 0.0, 0.06), (0.5 * math.cos(body_bearing),
+                                                                   0.5 * math.sin(body_bearing),
+                                                                   0.05)], noise=0.0)
+        body = np.where(scan.ranges < 1.0, scan.ranges + 0.01, np.nan)
+        detector = Detector()
+        detector.person_detector = PersonDetector(PersonDetectorConfig(), width_classifier())
+        det = detector.update(scan, stamped(1.0, still(0), body=body))
+        people = det.persons
+        at = int(np.argmin(np.hypot(*(people.leg_xy - [1.4, 0.0]).T)))
+        moved_by[name] = people.leg_probability[at], people.count
+    assert moved_by['cut'] == (detector.person_detector.partner_threshold, 0)
+    assert moved_by['apart'][1] == 1 and moved_by['apart'][0] > moved_by['cut'][0]
 
 
 def test_grids_on_request():

@@ -46,9 +46,10 @@ from laser_tracker.core import jit
 from laser_tracker.core.jit import pairwise_sum
 from laser_tracker.core.detections import Rows
 from laser_tracker.core.scan import Scan
-from laser_tracker.core.segmentation import (FEATURE_NAMES, FEATURE_SET, Clusters,
-                                             SegmentConfig, _clusters, as_clusters,
-                                             closes_circle, kernel_arguments)
+from laser_tracker.core.segmentation import (CLEARANCE, FEATURE_NAMES, FEATURE_SET,
+                                             MAX_WINDOW_ANGLE, Clusters, SegmentConfig,
+                                             _clusters, as_clusters, closes_circle,
+                                             kernel_arguments)
 from laser_tracker.errors import InputFileError
 
 log = logging.getLogger(__name__)
@@ -292,6 +293,13 @@ class PersonDetectorConfig:
         'leg beside it, but is no person alone: the wall the robot drives along, cut where '
         'the field of view ends, keeps its place beside the robot and looks like a lone leg. '
         'false = classified as any other segment.')
+    masked_edge: bool = param(
+        True, 'A segment that runs into a return the self-mask took out (beyond one of its '
+        'ends, the next beam that measured anything, within 0.15 m, returned the robot\'s '
+        'own body or a mixed return at a nearer edge, nearer than that end) may go on behind '
+        'it: as at the edge of the field of view, its leg probability counts at most as much '
+        'as a second leg needs (partner_threshold). It still completes a person with a whole '
+        'leg beside it, but is no person alone. false = classified as any other segment.')
 
 
 @dataclass
@@ -334,6 +342,39 @@ def cut_by_view(scan: Scan, clusters: Clusters) -> np.ndarray:
     return (clusters.first == 0) | (clusters.last == scan.n_beams - 1)
 
 
+def cut_by_mask(scan: Scan, clusters: Clusters, masked: np.ndarray) -> np.ndarray:
+    """Per cluster: beyond its first or last end, the next beam that measured anything
+    (beams without a return say nothing) returned what the self-mask took out of ``scan``
+    (``masked``, per beam; NaN: none), nearer than that end and within the clearance
+    window beside it (``segmentation.CLEARANCE`` at the end's range): the segment runs on
+    behind the robot's body or behind the edge that a mixed return marks."""
+    n, k = scan.n_beams, len(clusters)
+    if np.shape(masked) != (n,) or not k:
+        return np.zeros(k, bool)
+    masked = np.asarray(masked, dtype=float)
+    measured = np.isfinite(masked) | scan.valid()
+    turns = 3 if closes_circle(n, float(scan.angle_increment)) else 1
+    offset = n if turns == 3 else 0             # around the seam: the middle of three turns
+    size = n * turns
+    index = np.where(np.tile(measured, turns), np.arange(size), -1)
+    last_before = np.maximum.accumulate(index)  # the last measured beam at or before each
+    first_after = np.minimum.accumulate(np.where(index < 0, size, index)[::-1])[::-1]
+    da = abs(float(scan.angle_increment))
+    out = np.zeros(k, bool)
+    for end, neighbour, step in ((clusters.first, last_before, -1),
+                                 (clusters.last, first_after, 1)):
+        start = end + offset + step
+        beside = np.full(k, -1)
+        inside = (start >= 0) & (start < size)
+        beside[inside] = neighbour[start[inside]]
+        found = (beside >= 0) & (beside < size)
+        r = scan.ranges[end]
+        window = np.minimum(np.ceil(CLEARANCE / (r * da)), np.ceil(MAX_WINDOW_ANGLE / da))
+        found &= np.abs(beside - (end + offset)) <= window
+        out[found] = masked[(beside[found] - offset) % n] < r[found]    # NaN: False
+    return out
+
+
 class PersonDetector:
     """``PersonDetector(config).detect(scan) -> PersonDetections``.
 
@@ -371,14 +412,20 @@ class PersonDetector:
         raw, w = _classified(*args, *self.classifier.arrays)
         return as_clusters(raw, seam), _logistic(w)
 
-    def detect(self, scan: Scan) -> PersonDetections:
+    def detect(self, scan: Scan, masked: np.ndarray | None = None) -> PersonDetections:
+        """People in ``scan``; ``masked``: per beam, the return that the self-mask took out
+        of ``scan`` (NaN: none; see ``masked_edge``)."""
         c = self.config
         if not c.enabled:
             return PersonDetections.empty(scan.stamp, scan.frame_id)
         clusters, prob = self.classify(scan)
-        if c.view_edge and len(clusters):
-            prob = np.where(cut_by_view(scan, clusters),
-                            np.minimum(prob, self.partner_threshold), prob)
+        if len(clusters) and (c.view_edge or c.masked_edge):
+            cut = np.zeros(len(clusters), bool)
+            if c.view_edge:
+                cut |= cut_by_view(scan, clusters)
+            if c.masked_edge and masked is not None:
+                cut |= cut_by_mask(scan, clusters, masked)
+            prob = np.where(cut, np.minimum(prob, self.partner_threshold), prob)
         xy = clusters.xy
         is_leg = prob >= self.threshold
         persons, conf, legs = _people(xy, prob, self.threshold, self.partner_threshold,
