@@ -326,6 +326,10 @@ def test_a_segment_cut_by_the_robots_body_is_no_lone_leg():
     assert cut.detect(*_without(apart, apart.ranges < 1.0)).count == 1
     behind = scene([leg, _leg_at(20.0 - reach - 0.5, distance=3.0, radius=0.2)])
     assert cut.detect(*_without(behind, behind.ranges > 2.0)).count == 1
+    whole = scene([leg, body_at(20.0 - reach - 0.5)])
+    scan, body = _without(whole, whole.ranges < 1.0)
+    for garbage in (-body, np.where(np.isfinite(body), np.inf, np.nan), np.zeros_like(body)):
+        assert cut.detect(scan, garbage).count == 1       # no taken-out range: nothing cut
     n = 720
     seam = scene([_leg_at(179.0), body_at(179.0 + reach + 0.5)], n_beams=n,
                  fov=2 * np.pi * (n - 1) / n, angle_min=-np.pi)

@@ -345,33 +345,45 @@ def cut_by_view(scan: Scan, clusters: Clusters) -> np.ndarray:
 def cut_by_mask(scan: Scan, clusters: Clusters, masked: np.ndarray) -> np.ndarray:
     """Per cluster: beyond its first or last end, the next beam that measured anything
     (beams without a return say nothing) returned what the self-mask took out of ``scan``
-    (``masked``, per beam; NaN: none), nearer than that end and within the clearance
-    window beside it (``segmentation.CLEARANCE`` at the end's range): the segment runs on
-    behind the robot's body or behind the edge that a mixed return marks."""
-    n, k = scan.n_beams, len(clusters)
-    if np.shape(masked) != (n,) or not k:
-        return np.zeros(k, bool)
-    masked = np.asarray(masked, dtype=float)
-    measured = np.isfinite(masked) | scan.valid()
-    turns = 3 if closes_circle(n, float(scan.angle_increment)) else 1
-    offset = n if turns == 3 else 0             # around the seam: the middle of three turns
-    size = n * turns
-    index = np.where(np.tile(measured, turns), np.arange(size), -1)
-    last_before = np.maximum.accumulate(index)  # the last measured beam at or before each
-    first_after = np.minimum.accumulate(np.where(index < 0, size, index)[::-1])[::-1]
-    da = abs(float(scan.angle_increment))
-    out = np.zeros(k, bool)
-    for end, neighbour, step in ((clusters.first, last_before, -1),
-                                 (clusters.last, first_after, 1)):
-        start = end + offset + step
-        beside = np.full(k, -1)
-        inside = (start >= 0) & (start < size)
-        beside[inside] = neighbour[start[inside]]
-        found = (beside >= 0) & (beside < size)
-        r = scan.ranges[end]
-        window = np.minimum(np.ceil(CLEARANCE / (r * da)), np.ceil(MAX_WINDOW_ANGLE / da))
-        found &= np.abs(beside - (end + offset)) <= window
-        out[found] = masked[(beside[found] - offset) % n] < r[found]    # NaN: False
+    (``masked``, per beam; NaN, or anything but a positive finite range: none), nearer than
+    that end and within the clearance window beside it (``segmentation.CLEARANCE`` at the
+    end's range): the segment may go on behind the robot's body or behind the edge that a
+    mixed return marks."""
+    out = np.zeros(len(clusters), np.bool_)
+    if np.shape(masked) != (scan.n_beams,) or not len(clusters):
+        return out
+    _cut_by_mask(scan.ranges, np.ascontiguousarray(masked, dtype=float), clusters.first,
+                 clusters.last, max(scan.range_min, 1e-6), float(scan.range_max),
+                 abs(float(scan.angle_increment)),
+                 closes_circle(scan.n_beams, float(scan.angle_increment)), out)
+    return out
+
+
+@jit.kernel
+def _cut_by_mask(ranges, masked, first, last, valid_min, range_max, da, closed, out):
+    """:func:`cut_by_mask` into ``out``: from each end, outwards over the window's beams
+    (around the seam when the scan ``closed`` the circle) to the first that measured
+    anything."""
+    n = ranges.size
+    for c in range(first.size):
+        for e in range(2):
+            end = first[c] if e == 0 else last[c]
+            step = -1 if e == 0 else 1
+            r = ranges[end]
+            span = int(min(math.ceil(CLEARANCE / (r * da)), math.ceil(MAX_WINDOW_ANGLE / da)))
+            for j in range(1, span + 1):
+                beam = end + step * j
+                if closed:
+                    beam = beam % n
+                elif beam < 0 or beam >= n:
+                    break
+                m = masked[beam]
+                if m > 0.0 and m < np.inf:                  # taken out: it decides
+                    if m < r:
+                        out[c] = True
+                    break
+                if ranges[beam] >= valid_min and ranges[beam] < range_max:
+                    break                                   # a return of the scan
     return out
 
 

@@ -710,7 +710,8 @@ def _exercise_detection() -> None:
             pose.pose, pose.stamp, detector.blob_config, frame.points)
     without_lone_returns(np.unique(frame.flat), frame, scan, 0.13)
     one_leaf = LegClassifier(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 2)), 0.0)
-    people = PersonDetector(PersonDetectorConfig(), one_leaf).detect(scan)
+    people = PersonDetector(PersonDetectorConfig(), one_leaf).detect(
+        scan, _masked_returns(scan, _without_body(scan, np.full(scan.n_beams, 3.5))))
     people.legs = np.array([[0, -1]])
     people_in_odometry(people, pose.pose, pose.stamp, detector.history, detector.background,
                        detector.difference_config.motion_depth,
