@@ -193,7 +193,7 @@ def test_detection_passes_the_bodys_returns_to_the_person_detector():
     from test_person_detector import width_classifier
 
     world = room()
-    moved_by = {}
+    found = {}
     for name, body_bearing in (('cut', 0.14), ('apart', 0.6)):
         scan = make_scan(world, still(0), 1.0, [(1.4, 0.0, 0.06), (0.5 * math.cos(body_bearing),
                                                                    0.5 * math.sin(body_bearing),
@@ -204,9 +204,9 @@ def test_detection_passes_the_bodys_returns_to_the_person_detector():
         det = detector.update(scan, stamped(1.0, still(0), body=body))
         people = det.persons
         at = int(np.argmin(np.hypot(*(people.leg_xy - [1.4, 0.0]).T)))
-        moved_by[name] = people.leg_probability[at], people.count
-    assert moved_by['cut'] == (detector.person_detector.partner_threshold, 0)
-    assert moved_by['apart'][1] == 1 and moved_by['apart'][0] > moved_by['cut'][0]
+        found[name] = people.leg_probability[at], people.count
+    assert found['cut'] == (detector.person_detector.partner_threshold, 0)
+    assert found['apart'][1] == 1 and found['apart'][0] > found['cut'][0]
 
 
 def test_grids_on_request():

@@ -451,7 +451,7 @@ class Detector:
         at = np.asarray(pose.pose, dtype=float)
         det = self._detect(scan, at, want_grids, pose.quality)
         det.scan = measured
-        self._people_and_segments(scan, at, det, _masked_returns(measured, scan))
+        self._people_and_segments(scan, at, det)
         det.detections.view = view
         self._add_to_background(at, float(scan.stamp), det)
         det.detections.frame_id = pose.frame_id or self.frame_id
@@ -461,14 +461,15 @@ class Detector:
             self.events.note('gated', 'ego-motion pose not trusted: no blobs', logging.DEBUG)
         return det
 
-    def _people_and_segments(self, scan: Scan, pose: np.ndarray, det: Detection,
-                             masked: np.ndarray | None = None) -> None:
-        """People (by leg shape) and compact segments of ``scan``, odometry frame;
-        ``masked``: the returns the self-mask took out of ``scan`` (per beam; NaN: none), which
-        still hide what lies behind them."""
+    def _people_and_segments(self, scan: Scan, pose: np.ndarray, det: Detection) -> None:
+        """People (by leg shape) and compact segments of ``scan`` (without the returns the
+        self-mask took out of ``det.scan``, which the person detector is told of: they still
+        hide what lies behind them), odometry frame."""
         t0 = time.perf_counter() if self.times is not None else 0.0
         d = det.detections
         if self.person_detector is not None:
+            masked = _masked_returns(det.scan, scan) if self.person_config.masked_edge \
+                else None
             people = self.person_detector.detect(scan, masked)
             det.persons = people
             leg = people.leg_probability
@@ -817,11 +818,7 @@ def _masked_returns(measured: Scan, scan: Scan) -> np.ndarray | None:
     nothing was taken out)."""
     if scan is measured:
         return None
-    r = measured.ranges
-    with np.errstate(invalid='ignore'):
-        taken = np.isnan(scan.ranges) & (r >= max(measured.range_min, 1e-6)) & \
-            (r < measured.range_max)
-    return np.where(taken, r, np.nan)
+    return np.where(np.isnan(scan.ranges) & measured.valid(), measured.ranges, np.nan)
 
 
 def _planar(pose) -> tuple[float, float, float] | None:
