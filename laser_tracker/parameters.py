@@ -133,7 +133,8 @@ PAPER_REFERENCE: dict[str, dict[str, Any]] = {
         'hypotheses.new_when_ungated': False,  # Eq. 2 alone says which blob is new
         'hypotheses.confirm_time': 0.0,    # 4 samples, however short a time they span
         'hypotheses.person_initial_weight': 0.0,  # every hypothesis starts at initial_weight
-        'hypotheses.seen_empty_radius': 0.0,  # every confirmed hypothesis is reported
+        'hypotheses.seen_empty_radius': 0.0,  # every confirmed hypothesis is reported,
+        'hypotheses.report_hidden': True,     # hidden or not
     },
 }
 

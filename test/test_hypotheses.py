@@ -505,40 +505,72 @@ def test_an_unseen_track_is_reported_only_with_report_unseen():
     assert hidden[5] == [1] and hidden[6] == [] and hidden[7] == hidden[8] == [1]
 
 
-def test_a_coasting_track_is_not_reported_where_the_scan_sees_its_place_empty():
-    """A walker confirmed, then missed for one scan (it coasts to about 2.2 m ahead of the
-    scanner): left out of the report while every beam through the disc around it passes
-    beyond, with a few silent beams among them; reported while something nearer hides it,
-    something stands inside the disc, every beam is silent or one is too close to measure,
-    without a view, and with seen_empty_radius 0; always alive, with its id."""
-    bearing = np.radians(np.arange(-90.0, 90.25, 0.25))
+BEARING = np.radians(np.arange(-90.0, 90.25, 0.25))
 
-    def reported(reach, radius=0.5, view=True):
-        tr = HypothesisTracker(HypothesisConfig(seen_empty_radius=radius), KalmanConfig())
-        out = []
-        for k in range(9):
-            t = k * DT
-            d = frame(t, *(() if k == 6 else ((1.0 + t, 0.0),)))
-            if view:
-                d.view = View(bearing, reach if k == 6 else np.full(bearing.size, 8.0))
-            tr.update(d)
-            tracks = tr.report(t)
-            out.append(tracks.track_id[tracks.confirmed].tolist())
-            assert tr.hyp.track_id.tolist() == [1] or k < 2
-        return out
-    beyond = np.full(bearing.size, 8.0)
+
+def reported_while_coasting(reach, radius=0.5, view=True, report_hidden=False):
+    """Confirmed track ids reported at each of 9 frames: a walker along x at 1 m/s, missed
+    at frame 6 (it coasts to about 2.2 m ahead of the scanner), whose scan sees ``reach``
+    (per beam of ``BEARING``) then and 8 m everywhere before and after; the walker's
+    hypothesis stays alive, with its id, throughout."""
+    tr = HypothesisTracker(HypothesisConfig(seen_empty_radius=radius,
+                                            report_hidden=report_hidden), KalmanConfig())
+    out = []
+    for k in range(9):
+        t = k * DT
+        d = frame(t, *(() if k == 6 else ((1.0 + t, 0.0),)))
+        if view:
+            d.view = View(BEARING, reach if k == 6 else np.full(BEARING.size, 8.0))
+        tr.update(d)
+        tracks = tr.report(t)
+        out.append(tracks.track_id[tracks.confirmed].tolist())
+        assert tr.hyp.track_id.tolist() == [1] or k < 2
+    return out
+
+
+def test_a_coasting_track_is_not_reported_where_the_scan_sees_its_place_empty():
+    """Left out of the report while every beam through the disc around the coasting track
+    passes beyond, with a few silent beams among them; reported while something nearer
+    hides it (with report_hidden), something stands inside the disc, every beam is silent
+    or one is too close to measure, without a view, and with seen_empty_radius 0."""
+    beyond = np.full(BEARING.size, 8.0)
     beyond[::3] = np.inf
-    hidden = reported(beyond)
-    assert hidden[5] == [1] and hidden[6] == [] and hidden[7] == hidden[8] == [1]
-    for reach in (np.full(bearing.size, 1.0),             # something nearer hides it
-                  np.where(np.abs(bearing) < 0.01, 2.2, 8.0),   # a leg within the disc
-                  np.where(np.abs(bearing) < 0.01, 2.65, 8.0),  # ... at its far side
-                  np.full(bearing.size, np.inf),          # no return at all: no evidence
-                  np.where(np.abs(bearing) < 0.01, -np.inf, 8.0)):  # too close to measure
-        shown = reported(reach)
+    left_out = reported_while_coasting(beyond)
+    assert left_out[5] == [1] and left_out[6] == [] and left_out[7] == left_out[8] == [1]
+    for reach in (np.full(BEARING.size, 1.0),             # something nearer hides it
+                  np.where(np.abs(BEARING) < 0.01, 2.2, 8.0),   # a leg within the disc
+                  np.where(np.abs(BEARING) < 0.01, 2.65, 8.0),  # ... at its far side
+                  np.full(BEARING.size, np.inf),          # no return at all: no evidence
+                  np.where(np.abs(BEARING) < 0.01, -np.inf, 8.0)):  # too close to measure
+        shown = reported_while_coasting(reach, report_hidden=True)
         assert shown[5] == shown[6] == shown[7] == [1]
-    assert reported(beyond, radius=0.0)[6] == [1]
-    assert reported(beyond, view=False)[6] == [1]
+    assert reported_while_coasting(beyond, radius=0.0)[6] == [1]
+    assert reported_while_coasting(beyond, view=False)[6] == [1]
+
+
+def test_a_coasting_track_the_scan_shows_hidden_is_not_reported_by_default():
+    """The coasting track (about 2.2 m out, disc of 0.5 m) is left out while the beam
+    towards it stops well in front of the disc and nothing returns from the disc or from
+    within its radius in front of it: behind a wall at 1 m, behind a post at 1 m with the
+    rest of the disc seen empty, behind the post with every other beam silent; it comes
+    back, with its id, when measured again. Reported while a return lies within the
+    radius in front of the disc (the walker itself, strayed nearer than its prediction),
+    while a leg stands in the disc beside the wall's end, while the beam towards it passes
+    beyond (only part of the disc hidden), with report_hidden true, and with
+    seen_empty_radius 0."""
+    post = np.abs(BEARING) < 0.05
+    for reach in (np.full(BEARING.size, 1.0),             # a wall at 1 m
+                  np.where(post, 1.0, 8.0),               # a post, the rest seen empty
+                  np.where(post, 1.0, np.inf)):           # a post, the rest silent
+        hidden = reported_while_coasting(reach)
+        assert hidden[5] == [1] and hidden[6] == [] and hidden[7] == hidden[8] == [1]
+        assert reported_while_coasting(reach, report_hidden=True)[6] == [1]
+        assert reported_while_coasting(reach, radius=0.0)[6] == [1]
+    leg_beside_wall = np.where(np.abs(BEARING - 0.1) < 0.01, 2.3, 1.0)
+    for reach in (np.full(BEARING.size, 1.5),             # within the radius in front
+                  leg_beside_wall,
+                  np.where(BEARING > 0.02, 1.0, 8.0)):    # half the disc behind a wall
+        assert reported_while_coasting(reach)[6] == [1]
 
 
 def test_a_view_of_mismatched_lengths_is_no_view():

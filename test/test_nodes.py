@@ -21,8 +21,8 @@ def _bag_messages(bag=BAG):
 
 def _offline_tracks(messages):
     """Confirmed tracks per scan stamp from the offline pipeline fed in bag order, as the
-    tracking stage reports them (a coasting track whose place the scan sees empty is not:
-    ``hypotheses.seen_empty_radius``)."""
+    tracking stage reports them (a coasting track whose place the scan sees empty, or whose
+    position it shows hidden, is not: ``hypotheses.seen_empty_radius``, ``report_hidden``)."""
     from laser_tracker.conversions import odometry_from_msg, scan_from_msg
     from laser_tracker.core.pipeline import Pipeline
 

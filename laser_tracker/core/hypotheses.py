@@ -46,7 +46,8 @@ deletion, confirmation):
 Beyond the paper, person detections are measurements of their own kind (``person_*``), a
 confirmed track without support is held on a scan segment (``segment_gate``,
 ``stop_radius``) instead of coasting, and a coasting track whose place the scan sees empty
-is not reported (``seen_empty_radius``, ``core.tracking.visibility``).
+(``seen_empty_radius``) or hidden behind something nearer (``report_hidden``) is not
+reported (``core.tracking.visibility``).
 
 Identity. Each hypothesis has a ``track_id`` that is unique among the live hypotheses. On a
 split, the copy supported by the blob nearest the prediction keeps the parent's id, samples
@@ -256,6 +257,18 @@ class HypothesisConfig:
         'reported as not confirmed until it is measured again (it lives on with its id): '
         'fewer false positives against annotations of the people in view, but a person '
         'hidden for a moment leaves tracks and the head.')
+    report_hidden: bool = param(
+        False, 'Report a confirmed track that nothing measured in this scan while the scan '
+        'shows its position hidden: the beam towards it does not pass beyond the disc of '
+        'seen_empty_radius around it, a beam through that disc returns from in front of it '
+        'by more than that radius (farther than the object could have strayed off its '
+        'prediction: not the object itself), and none from the disc or just in front of '
+        'it. false: such a track is left out of tracks (reported as not confirmed; it lives '
+        'on with its id and comes back when it is measured again): annotated recordings '
+        'count the people in view, and it is no one in view. A track the detector missed, '
+        'whose place the scan sees something at, stays reported. Off with '
+        'seen_empty_radius 0. true: every coasting track is reported unless its place is '
+        'seen empty (as leg_tracker\'s publish_occluded; paper).')
     seen_empty_radius: float = param(
         0.5, 'A confirmed track that nothing measured in this scan is left out of tracks '
         '(reported as not confirmed; it lives on with its id) while every beam through the '
@@ -351,7 +364,7 @@ class HypothesisTracker:
             log.warning('tracker reset: %s', reason)
             self.stats['resets'] += 1
         self.hyp = Hypotheses.empty(self.filter.dim)
-        self.seen_empty = (math.nan, np.zeros(0, bool))   # (stamp, mask over hyp)
+        self.left_out = (math.nan, np.zeros(0, bool))   # (stamp, mask over hyp)
         self.measurements.reset()
         self.initiation.reset()
         self.identity.reset()
@@ -388,16 +401,17 @@ class HypothesisTracker:
                 self.identity.remember_lost(removed, t)
             newly = self.confirmation.confirm(hyp, frame, self.identity.continuing(hyp, t))
             self.identity.resume(hyp, newly, t)
-            self.seen_empty = (t, self.visibility.seen_empty(hyp, frame))
+            self.left_out = (t, self.visibility.left_out(hyp, frame))
         self.hyp = hyp
         self.initiation.remember(frame)
         self.measurements.remember(frame)
         return FrameResult(stamp=t, hypotheses=hyp, newly_confirmed=newly,
                            created=sum(map(len, born)), bounded=bounded)
 
-    def _seen_empty(self, stamp: float) -> np.ndarray:
-        """The last frame's seen-empty mask when ``stamp`` is that frame's, else none."""
-        stamp_then, mask = self.seen_empty
+    def _left_out(self, stamp: float) -> np.ndarray:
+        """The last frame's left-out mask (``tracking.visibility``) when ``stamp`` is that
+        frame's, else none."""
+        stamp_then, mask = self.left_out
         if stamp == stamp_then and mask.shape[0] == len(self.hyp):
             return mask
         return np.zeros(len(self.hyp), bool)
@@ -406,7 +420,8 @@ class HypothesisTracker:
         """The hypotheses as :class:`Tracks` at ``stamp`` (the frame just updated); with
         ``report_unseen`` false a confirmed track that nothing measured at ``stamp`` (its
         filter's ``t_state`` is older) is reported as not confirmed, and so is one whose
-        place the scan sees empty (``seen_empty_radius``, ``tracking.visibility``)."""
+        place the scan sees empty (``seen_empty_radius``) or, with ``report_hidden`` false,
+        sees hidden (``tracking.visibility``)."""
         h, c = self.hyp, self.config
         speed2 = (h.velocity ** 2).sum(axis=1)
         return Tracks(stamp=float(stamp), track_id=h.track_id.copy(),
@@ -414,7 +429,7 @@ class HypothesisTracker:
                       covariance=self.filter.position_covariance(h.P, h.t_state, stamp),
                       weight=h.weight.copy(), samples=h.samples.copy(),
                       confirmed=h.confirmed & (c.report_unseen | (h.t_state >= stamp))
-                      & ~self._seen_empty(stamp),
+                      & ~self._left_out(stamp),
                       moving=(speed2 >= c.moving_speed ** 2) & ~h.stopped,
                       kind=np.where(h.is_person(c.person_kind_samples),
                                     'person', 'object').astype(object))
@@ -450,7 +465,7 @@ def _exercise_kernels() -> None:
         sustaining._holding_segments(np.arange(n), xy, r['position'], r['person_samples'],
                                      r['confirmed'], xy, np.ones(n), 2, 0.02, 0.5, 0.15)
         initiation._pairs(xy, np.ones(n, bool), xy, 0.6, 0.1)
-        visibility._seen_empty(xy, np.linspace(-1.0, 1.0, 5), np.full(5, 3.0), 0.5)
+        visibility._left_out(xy, np.linspace(-1.0, 1.0, 5), np.full(5, 3.0), 0.5, True)
     filter = TrackFilter(KalmanConfig())
     state, P = filter.initial(np.ones((1, 2)), np.zeros((1, 2)), np.ones(1))
     filter.correct(state, P, np.zeros(1), np.ones((1, 2)), 1.0)
