@@ -770,8 +770,9 @@ def detections_to_marker_array(factory: MessageFactory, detections):
     one POINTS marker (ns ``segments``, id 0) whose points are the scan's compact segments
     (text = JSON ``{"leg": [leg probability of each]}``), one POINTS marker (ns ``view``,
     id 0) whose pose is the scanner pose and whose points, one per beam in the scanner's
-    frame, are what each beam saw (a return at its end point, z = 0; no return: the point 1 m
-    along the beam, z = 1; too close to measure: the same, z = -1), and one ARROW (ns
+    frame, are what each beam saw (a return at its end point, z = 0, or z = 0.5 where it lies
+    on static background; no return: the point 1 m along the beam, z = 1; too close to
+    measure: the same, z = -1), and one ARROW (ns
     ``scanner``, id 0) whose pose is the scanner pose and whose text is JSON
     ``{"restarted": bool}`` (the ego-motion restarted its pose chain: tracks are void).
     """
@@ -853,7 +854,9 @@ def _view_points(view) -> list[tuple[float, float, float]]:
     reach = np.asarray(view.reach, dtype=float).reshape(-1)
     seen = np.isfinite(reach)
     r = np.where(seen, reach, 1.0)
-    code = np.where(seen, 0.0, np.where(reach > 0, 1.0, -1.0))
+    background = np.asarray(view.background, dtype=bool).reshape(-1)
+    on_background = seen & background if background.shape == seen.shape else 0.0
+    code = np.where(seen, 0.5 * on_background, np.where(reach > 0, 1.0, -1.0))
     return np.column_stack((r * np.cos(bearing), r * np.sin(bearing), code)).tolist()
 
 
@@ -862,8 +865,8 @@ def _view_of_points(points: np.ndarray):
     from laser_tracker.core.detections import View
 
     x, y, z = points.T
-    reach = np.where(z > 0.5, np.inf, np.where(z < -0.5, -np.inf, np.hypot(x, y)))
-    return View(bearing=np.arctan2(y, x), reach=reach)
+    reach = np.where(z > 0.75, np.inf, np.where(z < -0.5, -np.inf, np.hypot(x, y)))
+    return View(bearing=np.arctan2(y, x), reach=reach, background=(z > 0.25) & (z <= 0.75))
 
 
 def detections_from_marker_array(msg):

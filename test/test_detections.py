@@ -26,7 +26,8 @@ def message() -> Detections:
         segments=Segments(xy=np.array([[1.0, 1.0], [2.0, 3.0], [4.0, 0.0]]),
                           leg=np.array([0.8, 0.01, 0.0])),
         view=View(bearing=np.array([-2.0, -0.5, 0.0, 1.0, 2.5]),
-                  reach=np.array([0.3, np.inf, 4.25, -np.inf, 11.0])))
+                  reach=np.array([0.3, np.inf, 4.25, -np.inf, 11.0]),
+                  background=np.array([False, False, True, False, True])))
 
 
 @pytest.mark.parametrize('factory', [ros_factory(), bag_factory(TYPESTORE)],
@@ -51,6 +52,7 @@ def test_every_field_crosses_the_blobs_topic(factory):
     np.testing.assert_allclose(got.segments.leg, sent.segments.leg)
     np.testing.assert_allclose(got.view.bearing, sent.view.bearing, atol=1e-9)
     np.testing.assert_allclose(got.view.reach, sent.view.reach, atol=1e-9)
+    assert got.view.background.tolist() == sent.view.background.tolist()
 
 
 def test_an_empty_scan_is_an_empty_message():

@@ -508,19 +508,25 @@ def test_an_unseen_track_is_reported_only_with_report_unseen():
 BEARING = np.radians(np.arange(-90.0, 90.25, 0.25))
 
 
-def reported_while_coasting(reach, radius=0.5, view=True, report_hidden=False):
+def reported_while_coasting(reach, radius=0.5, view=True, report_hidden=False,
+                            background=None, background_hides=True):
     """Confirmed track ids reported at each of 9 frames: a walker along x at 1 m/s, missed
     at frame 6 (it coasts to about 2.2 m ahead of the scanner), whose scan sees ``reach``
-    (per beam of ``BEARING``) then and 8 m everywhere before and after; the walker's
-    hypothesis stays alive, with its id, throughout."""
+    (per beam of ``BEARING``; ``background``: the returns on static background) then and
+    8 m everywhere before and after; the walker's hypothesis stays alive, with its id,
+    throughout."""
     tr = HypothesisTracker(HypothesisConfig(seen_empty_radius=radius,
-                                            report_hidden=report_hidden), KalmanConfig())
+                                            report_hidden=report_hidden,
+                                            background_hides=background_hides),
+                           KalmanConfig())
+    background = np.zeros(BEARING.size, bool) if background is None else background
     out = []
     for k in range(9):
         t = k * DT
         d = frame(t, *(() if k == 6 else ((1.0 + t, 0.0),)))
         if view:
-            d.view = View(BEARING, reach if k == 6 else np.full(BEARING.size, 8.0))
+            d.view = View(BEARING, reach, background) if k == 6 else \
+                View(BEARING, np.full(BEARING.size, 8.0))
         tr.update(d)
         tracks = tr.report(t)
         out.append(tracks.track_id[tracks.confirmed].tolist())
@@ -573,6 +579,29 @@ def test_a_coasting_track_the_scan_shows_hidden_is_not_reported_by_default():
         assert reported_while_coasting(reach)[6] == [1]
 
 
+def test_a_coasting_track_behind_static_background_just_in_front_is_not_reported():
+    """A wall at 1.8 m, within the disc's radius in front of the coasting track (about
+    2.2 m out): as a return of this scan alone it may be the walker, strayed nearer than
+    its prediction, and the track stays reported; on static background (long seen there,
+    so not the walker) it hides the track, which is left out and comes back with its id.
+    Reported with background_hides or report_hidden true, where the background lies beyond
+    the position (the beams reached the place), and where a return not on the background
+    (a leg) stands in the disc in front of the background wall."""
+    wall = np.full(BEARING.size, 1.8)
+    on_background = np.ones(BEARING.size, bool)
+    assert reported_while_coasting(wall)[6] == [1]
+    hidden = reported_while_coasting(wall, background=on_background)
+    assert hidden[5] == [1] and hidden[6] == [] and hidden[7] == hidden[8] == [1]
+    assert reported_while_coasting(wall, background=on_background,
+                                   background_hides=False)[6] == [1]
+    assert reported_while_coasting(wall, background=on_background,
+                                   report_hidden=True)[6] == [1]
+    behind = np.full(BEARING.size, 2.4)
+    assert reported_while_coasting(behind, background=on_background)[6] == [1]
+    leg = np.abs(BEARING) < 0.01
+    assert reported_while_coasting(np.where(leg, 2.1, 1.8), background=~leg)[6] == [1]
+
+
 def test_a_view_of_mismatched_lengths_is_no_view():
     """A malformed view (bearings and reaches of different lengths) is taken as none, NaN
     beams are dropped: a coasting track stays reported, nothing raises."""
@@ -580,6 +609,11 @@ def test_a_view_of_mismatched_lengths_is_no_view():
     assert len(_view(View(np.zeros(5), np.zeros(4)))) == 0
     v = _view(View(np.array([0.0, np.nan, 0.1]), np.array([1.0, 2.0, np.nan])))
     assert v.bearing.tolist() == [0.0] and v.reach.tolist() == [1.0]
+    assert v.background.tolist() == [False]
+    flags = _view(View(np.zeros(3), np.ones(3), np.ones(2, bool)))   # flags malformed
+    assert len(flags) == 3 and not flags.background.any()
+    assert _view(View(np.zeros(2), np.ones(2), np.array([True, False]))
+                 ).background.tolist() == [True, False]
     for n in (3, 4):                  # 4 bearings with 3 reaches (malformed), or 4
         tr = HypothesisTracker(HypothesisConfig(), KalmanConfig())
         for k in range(7):

@@ -355,3 +355,24 @@ def test_a_40_hz_scanner_is_thinned_to_ten_scans_a_second_and_still_sees_a_walke
                     BlobConfig())
     assert all(det.update(ring_scan(3.0 + k / 40.0), pose(3.0 + k / 40.0)) is not None
                for k in range(8))
+
+
+def test_the_view_marks_the_returns_on_static_background():
+    """Returns where the scans have seen something for difference.static_occupied seconds
+    are on static background: none at the first scan, the room's wall after 1.2 s, not a
+    post that has just appeared (nor the wall behind it, hidden now), and none without a
+    background (difference.static_time 0)."""
+    from dataclasses import replace
+    detector = Detector()
+    first = detector.update(ring_scan(0.0), pose(0.0)).detections.view
+    assert len(first) == 361 and not first.background.any()
+    for k in range(1, 13):
+        detector.update(ring_scan(0.1 * k), pose(0.1 * k))
+    view = detector.update(ring_scan(1.3, mover_y=0.0), pose(1.3)).detections.view
+    post = view.reach < 3.0
+    assert 5 < post.sum() < 20
+    assert view.background[~post].all() and not view.background[post].any()
+    off = Detector(difference=replace(detector.difference_config, static_time=0.0))
+    for k in range(14):
+        view = off.update(ring_scan(0.1 * k), pose(0.1 * k)).detections.view
+    assert len(view) == 361 and not view.background.any()

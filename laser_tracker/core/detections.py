@@ -79,10 +79,12 @@ class View:
     +inf where it returned nothing (REP 117: +inf, NaN, a no-return code below
     ``range_min``, a reading at ``range_max``; a dark or grazed surface may lie anywhere
     along it), -inf where something was too close to measure. Empty: not known (an older
-    message)."""
+    message). ``background``: per beam, its return lies on static background (where
+    something has long stood); empty: not known."""
 
     bearing: np.ndarray = field(default_factory=lambda: np.zeros(0))
     reach: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    background: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def __len__(self) -> int:
         return int(np.shape(self.bearing)[0])

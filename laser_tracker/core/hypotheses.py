@@ -269,6 +269,13 @@ class HypothesisConfig:
         'whose place the scan sees something at, stays reported. Off with '
         'seen_empty_radius 0. true: every coasting track is reported unless its place is '
         'seen empty (as leg_tracker\'s publish_occluded; paper).')
+    background_hides: bool = param(
+        True, 'With report_hidden false: a return from static background (where the scans '
+        'had long seen something before this scan: the wall a person walked behind) nearer '
+        'than a coasting track\'s position is not the object, which cannot have stood '
+        'there that long, but something that hides it. false: a return within '
+        'seen_empty_radius in front of the position may be the object. Off with '
+        'report_hidden true.')
     seen_empty_radius: float = param(
         0.5, 'A confirmed track that nothing measured in this scan is left out of tracks '
         '(reported as not confirmed; it lives on with its id) while every beam through the '
@@ -465,7 +472,8 @@ def _exercise_kernels() -> None:
         sustaining._holding_segments(np.arange(n), xy, r['position'], r['person_samples'],
                                      r['confirmed'], xy, np.ones(n), 2, 0.02, 0.5, 0.15)
         initiation._pairs(xy, np.ones(n, bool), xy, 0.6, 0.1)
-        visibility._left_out(xy, np.linspace(-1.0, 1.0, 5), np.full(5, 3.0), 0.5, True)
+        visibility._left_out(xy, np.linspace(-1.0, 1.0, 5), np.full(5, 3.0),
+                              np.zeros(5, np.bool_), 0.5, True)
     filter = TrackFilter(KalmanConfig())
     state, P = filter.initial(np.ones((1, 2)), np.zeros((1, 2)), np.ones(1))
     filter.correct(state, P, np.zeros(1), np.ones((1, 2)), 1.0)

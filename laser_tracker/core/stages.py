@@ -452,7 +452,7 @@ class Detector:
         det = self._detect(scan, at, want_grids, pose.quality)
         det.scan = measured
         self._people_and_segments(scan, at, det)
-        det.detections.view = view
+        det.detections.view = self._on_background(view, at, float(scan.stamp))
         self._add_to_background(at, float(scan.stamp), det)
         det.detections.frame_id = pose.frame_id or self.frame_id
         det.detections.stamp_ns = scan.stamp_ns
@@ -494,6 +494,18 @@ class Detector:
         d.segments = Segments(xy=segments, leg=leg)
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
+
+    def _on_background(self, view: View, pose: np.ndarray, stamp: float) -> View:
+        """``view`` with the beams whose return lies on static background marked (before
+        this scan joins it)."""
+        if self.background is None or not len(view):
+            return view
+        seen = np.isfinite(view.reach)
+        r = np.where(seen, view.reach, 0.0)
+        angle = view.bearing + pose[2]
+        xy = np.column_stack((pose[0] + r * np.cos(angle), pose[1] + r * np.sin(angle)))
+        view.background = seen & self.background.static(xy, stamp)
+        return view
 
     def _remember_people(self, xy: np.ndarray, stamp: float, pose: np.ndarray) -> None:
         """This scan's people join those of the last ``walked_out_window`` seconds."""

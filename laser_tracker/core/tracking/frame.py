@@ -248,14 +248,19 @@ def _segments(segments: Segments) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _view(view: View) -> View:
-    """``view`` as float arrays of one length (an empty view where they differ: a malformed
-    message; NaN bearings are dropped)."""
+    """``view`` as arrays of one length (an empty view where bearing and reach differ: a
+    malformed message; no beam on background where its flags do not match; NaN bearings
+    are dropped)."""
     bearing = np.asarray(view.bearing, dtype=float).reshape(-1)
     reach = np.asarray(view.reach, dtype=float).reshape(-1)
     if bearing.shape[0] != reach.shape[0]:
         return View()
+    background = np.asarray(view.background, dtype=bool).reshape(-1)
+    if background.shape[0] != bearing.shape[0]:
+        background = np.zeros(bearing.shape[0], bool)
     ok = ~np.isnan(bearing) & ~np.isnan(reach)
-    return View(bearing, reach) if ok.all() else View(bearing[ok], reach[ok])
+    return View(bearing, reach, background) if ok.all() else \
+        View(bearing[ok], reach[ok], background[ok])
 
 
 def _finite_rows(xy: np.ndarray, values) -> tuple[np.ndarray, np.ndarray | None]:

@@ -14,7 +14,9 @@ scan sees the place itself, it can tell which:
   could have strayed off its prediction, so not the object itself) and none returns from
   the disc or from just in front of it, the position is out of the scanner's sight and
   nothing in sight is near it. Annotated recordings count the people in view; such a track
-  is no one in view.
+  is no one in view. A return from static background just in front of the position
+  (``background_hides``: the scans had long seen something there, so it is not an object
+  that has just walked there) counts as what hides it: the wall a person walked behind.
 
 Such a track is left out of ``tracks`` for this frame (it lives on with its id, and comes
 back when it is measured again). A track whose place the scan sees something at (the
@@ -47,13 +49,15 @@ class Visibility(Role):
         if radius <= 0 or not rows.size or not len(view):
             return out
         local = frame.scanner.to_scanner(hyp.position[rows])
-        out[rows] = _left_out(local, view.bearing, view.reach, radius,
+        background = view.background if self.config.background_hides \
+            and len(view.background) == len(view) else np.zeros(len(view), bool)
+        out[rows] = _left_out(local, view.bearing, view.reach, background, radius,
                               not self.config.report_hidden)
         return out
 
 
 @jit.kernel
-def _left_out(local, bearing, reach, radius, hidden_too):
+def _left_out(local, bearing, reach, background, radius, hidden_too):
     """Per point of ``local`` (k, 2; scanner frame), of the beams (``bearing``, ``reach``:
     range of the return, +inf none, -inf too close) through the disc of ``radius`` around
     it (``rho`` from the scanner):
@@ -65,7 +69,8 @@ def _left_out(local, bearing, reach, radius, hidden_too):
       (the object may stand up to ``radius`` off the point, nearer the scanner: a return
       behind that may be the object itself), none from between there and the far side,
       and the one nearest the point's bearing does not pass beyond: the point is out of
-      sight."""
+      sight. A return on static background (``background``) between ``rho - 2 radius``
+      and the point is not the object but in front of it."""
     out = np.zeros(local.shape[0], np.bool_)
     for i in range(local.shape[0]):
         x, y = local[i, 0], local[i, 1]
@@ -82,6 +87,8 @@ def _left_out(local, bearing, reach, radius, hidden_too):
             if off > half:
                 continue
             r = reach[j]
+            if background[j] and near <= r < rho:      # not the object: it hides it
+                r = -math.inf
             if off < nearest_off:
                 nearest, nearest_off = r, off
             if r == math.inf:
