@@ -43,6 +43,28 @@ def test_background_counts_seconds_not_scans():
         assert bg.static(point, 1.0), rate
 
 
+@pytest.mark.parametrize('later', [1.3, 4.0, 9.0, 40.0])
+def test_the_beams_on_static_background_are_those_whose_end_points_are_static(later):
+    """``on_returns`` (per beam, from a pose; sharing a cell's answer between beams) agrees
+    with ``static`` of the beams' end points, on part of the scene seen long, part seen once,
+    beams without a return and a background decaying with time."""
+    bg = StaticBackground(0.1, DifferenceConfig(static_time=10.0, static_occupied=0.75))
+    bearing = np.linspace(-2.3, 2.3, 768)
+    reach = 3.0 + 2.0 * np.sin(3.0 * bearing)
+    reach[::7], reach[3::11], reach[5::13] = np.inf, np.nan, -np.inf
+    pose = np.array([0.3, -0.2, 0.4])
+    seen = np.isfinite(reach)
+    r = np.where(seen, reach, 0.0)
+    ends = np.column_stack((pose[0] + r * np.cos(bearing + pose[2]),
+                            pose[1] + r * np.sin(bearing + pose[2])))
+    for k in range(12):
+        bg.add(ends[seen][:300], 0.1 * k)
+    bg.add(ends[seen][300:400], 1.2)
+    on = bg.on_returns(bearing, reach, pose, later)
+    assert on.tolist() == (seen & bg.static(ends, later)).tolist()
+    assert (on.sum() > 250) == (later < 5.0) and not on[~seen].any()
+
+
 def test_far_away_cells_sharing_a_slot_do_not_alias():
     bg = StaticBackground(0.1, DifferenceConfig(static_time=10.0, static_occupied=0.1),
                           size=64)

@@ -595,6 +595,43 @@ def _background_counts(xy, key, count, last, settings, stamp):
 
 
 @jit.kernel
+def _returns_on_background(bearing, reach, pose, key, count, last, settings, stamp):
+    """Per beam (``bearing``, ``reach``: scanner frame at ``pose``; not finite: no return):
+    its return lies on static background (a cell within one cell of it, see
+    :func:`_background_count`). Beams whose returns share a cell share its answer; a cell's
+    neighbourhood is read until one is static."""
+    out = np.zeros(bearing.size, np.bool_)
+    bits = int(settings[_BITS])
+    mask = (1 << bits) - 1
+    inv, tau, threshold = settings[_INV], settings[_TAU], settings[_THRESHOLD]
+    last_i, last_j, last_answer = np.int64(0), np.int64(0), False
+    known = False
+    for b in range(bearing.size):
+        r = reach[b]
+        if not math.isfinite(r):
+            continue
+        a = bearing[b] + pose[2]
+        i0 = np.int64(math.floor((pose[0] + r * math.cos(a)) * inv))
+        j0 = np.int64(math.floor((pose[1] + r * math.sin(a)) * inv))
+        if not (known and i0 == last_i and j0 == last_j):
+            answer = False
+            for n in range(9):                      # the cell itself first
+                i = i0 + (n + 4) % 9 // 3 - 1
+                j = j0 + (n + 4) % 3 - 1
+                slot = ((i & mask) << bits) | (j & mask)
+                if key[slot] != (i << 32) + j or count[slot] < threshold:
+                    continue
+                age = (stamp - last[slot]) / tau           # exp(-age) >= 1 - age
+                if count[slot] * (1.0 - age) >= threshold \
+                        or count[slot] * math.exp(-age) >= threshold:
+                    answer = True
+                    break
+            last_i, last_j, last_answer, known = i0, j0, answer, True
+        out[b] = last_answer
+    return out
+
+
+@jit.kernel
 def _background_add(points, pose, movers, radius, key, count, last, settings, stamp, step):
     """The end points ``points`` (scanner frame at ``pose``) farther than ``radius`` from
     every mover (``movers``, odometry frame) hit their background cells, each cell once."""
@@ -846,6 +883,14 @@ class StaticBackground:
     def static(self, xy: np.ndarray, stamp: float) -> np.ndarray:
         """Mask: points on static structure (see the class doc)."""
         return self.counts(xy, stamp) >= self.settings[_THRESHOLD]
+
+    def on_returns(self, bearing: np.ndarray, reach: np.ndarray, pose, stamp: float) -> np.ndarray:
+        """Mask over the beams (``bearing``, ``reach``: scanner frame at ``pose``, odometry
+        frame; not finite: no return): the return lies on static structure."""
+        return _returns_on_background(np.asarray(bearing, dtype=float),
+                                      np.asarray(reach, dtype=float),
+                                      np.asarray(pose, dtype=float), *self.arrays,
+                                      float(stamp))
 
     def add(self, xy: np.ndarray, stamp: float, pose=(0.0, 0.0, 0.0), movers=None,
             radius: float = 0.0) -> None:

@@ -498,13 +498,8 @@ class Detector:
     def _on_background(self, view: View, pose: np.ndarray, stamp: float) -> View:
         """``view`` with the beams whose return lies on static background marked (before
         this scan joins it)."""
-        if self.background is None or not len(view):
-            return view
-        seen = np.isfinite(view.reach)
-        r = np.where(seen, view.reach, 0.0)
-        angle = view.bearing + pose[2]
-        xy = np.column_stack((pose[0] + r * np.cos(angle), pose[1] + r * np.sin(angle)))
-        view.background = seen & self.background.static(xy, stamp)
+        if self.background is not None and len(view):
+            view.background = self.background.on_returns(view.bearing, view.reach, pose, stamp)
         return view
 
     def _remember_people(self, xy: np.ndarray, stamp: float, pose: np.ndarray) -> None:
