@@ -45,9 +45,11 @@ def test_background_counts_seconds_not_scans():
 
 @pytest.mark.parametrize('later', [1.3, 4.0, 9.0, 40.0])
 def test_the_beams_on_static_background_are_those_whose_end_points_are_static(later):
-    """``on_returns`` (per beam, from a pose; sharing a cell's answer between beams) agrees
-    with ``static`` of the beams' end points, on part of the scene seen long, part seen once,
-    beams without a return and a background decaying with time."""
+    """``on_returns`` (per beam, from a pose; sharing a cell's answer between beams) and
+    ``static`` (per point; both stop at the first static cell) agree with the largest
+    decayed occupancy around the beams' end points (``counts``) against static_occupied,
+    on part of the scene seen long, part seen once, beams without a return and a
+    background decaying with time."""
     bg = StaticBackground(0.1, DifferenceConfig(static_time=10.0, static_occupied=0.75))
     bearing = np.linspace(-2.3, 2.3, 768)
     reach = 3.0 + 2.0 * np.sin(3.0 * bearing)
@@ -61,7 +63,9 @@ def test_the_beams_on_static_background_are_those_whose_end_points_are_static(la
         bg.add(ends[seen][:300], 0.1 * k)
     bg.add(ends[seen][300:400], 1.2)
     on = bg.on_returns(bearing, reach, pose, later)
-    assert on.tolist() == (seen & bg.static(ends, later)).tolist()
+    occupied = bg.counts(ends, later) >= 0.75
+    assert on.tolist() == (seen & occupied).tolist()
+    assert bg.static(ends, later).tolist() == occupied.tolist()
     assert (on.sum() > 250) == (later < 5.0) and not on[~seen].any()
 
 

@@ -404,6 +404,32 @@ def _background_count(x, y, key, count, last, settings, stamp):
 
 
 @jit.kernel
+def _on_background(x, y, key, count, last, settings, stamp):
+    """Point ``(x, y)`` (odometry frame) is on static background: the decayed occupancy of a
+    cell within one cell of it reaches ``static_occupied`` (the largest of
+    :func:`_background_count`, read until one cell does: the point's own cell first, and
+    the decay's exponential only where its bound ``exp(-a) >= 1 - a`` does not decide)."""
+    bits = int(settings[_BITS])
+    mask = (1 << bits) - 1
+    i0 = np.int64(math.floor(x * settings[_INV]))
+    j0 = np.int64(math.floor(y * settings[_INV]))
+    threshold = settings[_THRESHOLD]
+    for n in range(9):
+        i = i0 + (n + 4) % 9 // 3 - 1
+        j = j0 + (n + 4) % 3 - 1
+        slot = ((i & mask) << bits) | (j & mask)
+        if key[slot] != (i << 32) + j:
+            continue
+        c = count[slot]
+        age = (stamp - last[slot]) / settings[_TAU]
+        if c * (1.0 - age) >= threshold:
+            return True
+        if (c >= threshold or age < 0.0) and c * math.exp(-age) >= threshold:
+            return True
+    return False
+
+
+@jit.kernel
 def _to_world(pose, x, y):
     """Point ``(x, y)`` of the scanner frame at ``pose`` in the odometry frame
     (``geometry.transform_points``)."""
@@ -459,8 +485,7 @@ def _changed(frame_ij, frame_flat, points, stack, lazy, free, rays, reach, meta,
             continue
         if background.size:
             x, y = _to_world(pose, points[r, 0], points[r, 1])
-            if _background_count(x, y, key, count, last, background, stamp) \
-                    >= background[_THRESHOLD]:
+            if _on_background(x, y, key, count, last, background, stamp):
                 continue
         changed[n_changed] = frame_flat[r]
         n_changed += 1
@@ -547,8 +572,8 @@ def _people(persons, legs, leg_xy, pose, stamp, stack, lazy, free, rays, reach, 
             if leg < 0:
                 continue
             x, y = legs_world[leg, 0], legs_world[leg, 1]
-            static = background.size > 0 and _background_count(
-                x, y, key, count, last, background, stamp) >= background[_THRESHOLD]
+            static = background.size > 0 and _on_background(
+                x, y, key, count, last, background, stamp)
             inside = True
             for a in range(2):
                 v = math.floor(leg_xy[leg, a] / resolution + cells / 2.0)
@@ -597,37 +622,30 @@ def _background_counts(xy, key, count, last, settings, stamp):
 @jit.kernel
 def _returns_on_background(bearing, reach, pose, key, count, last, settings, stamp):
     """Per beam (``bearing``, ``reach``: scanner frame at ``pose``; not finite: no return):
-    its return lies on static background (a cell within one cell of it, see
-    :func:`_background_count`). Beams whose returns share a cell share its answer; a cell's
-    neighbourhood is read until one is static."""
+    its return lies on static background (:func:`_on_background`). Beams whose returns
+    share a cell share its answer."""
     out = np.zeros(bearing.size, np.bool_)
-    bits = int(settings[_BITS])
-    mask = (1 << bits) - 1
-    inv, tau, threshold = settings[_INV], settings[_TAU], settings[_THRESHOLD]
-    last_i, last_j, last_answer = np.int64(0), np.int64(0), False
-    known = False
+    inv = settings[_INV]
+    last_i, last_j, last_answer, known = np.int64(0), np.int64(0), False, False
     for b in range(bearing.size):
         r = reach[b]
         if not math.isfinite(r):
             continue
         a = bearing[b] + pose[2]
-        i0 = np.int64(math.floor((pose[0] + r * math.cos(a)) * inv))
-        j0 = np.int64(math.floor((pose[1] + r * math.sin(a)) * inv))
-        if not (known and i0 == last_i and j0 == last_j):
-            answer = False
-            for n in range(9):                      # the cell itself first
-                i = i0 + (n + 4) % 9 // 3 - 1
-                j = j0 + (n + 4) % 3 - 1
-                slot = ((i & mask) << bits) | (j & mask)
-                if key[slot] != (i << 32) + j or count[slot] < threshold:
-                    continue
-                age = (stamp - last[slot]) / tau           # exp(-age) >= 1 - age
-                if count[slot] * (1.0 - age) >= threshold \
-                        or count[slot] * math.exp(-age) >= threshold:
-                    answer = True
-                    break
-            last_i, last_j, last_answer, known = i0, j0, answer, True
+        x, y = pose[0] + r * math.cos(a), pose[1] + r * math.sin(a)
+        i, j = np.int64(math.floor(x * inv)), np.int64(math.floor(y * inv))
+        if not (known and i == last_i and j == last_j):
+            last_answer = _on_background(x, y, key, count, last, settings, stamp)
+            last_i, last_j, known = i, j, True
         out[b] = last_answer
+    return out
+
+
+@jit.kernel
+def _points_on_background(xy, key, count, last, settings, stamp):
+    out = np.zeros(xy.shape[0], np.bool_)
+    for r in range(xy.shape[0]):
+        out[r] = _on_background(xy[r, 0], xy[r, 1], key, count, last, settings, stamp)
     return out
 
 
@@ -882,7 +900,7 @@ class StaticBackground:
 
     def static(self, xy: np.ndarray, stamp: float) -> np.ndarray:
         """Mask: points on static structure (see the class doc)."""
-        return self.counts(xy, stamp) >= self.settings[_THRESHOLD]
+        return _points_on_background(np.asarray(xy, dtype=float), *self.arrays, float(stamp))
 
     def on_returns(self, bearing: np.ndarray, reach: np.ndarray, pose, stamp: float) -> np.ndarray:
         """Mask over the beams (``bearing``, ``reach``: scanner frame at ``pose``, odometry

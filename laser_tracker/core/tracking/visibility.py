@@ -50,7 +50,7 @@ class Visibility(Role):
             return out
         local = frame.scanner.to_scanner(hyp.position[rows])
         background = view.background if self.config.background_hides \
-            and len(view.background) == len(view) else np.zeros(len(view), bool)
+            else np.zeros(len(view), bool)     # Frame's view: flags as long as the beams
         out[rows] = _left_out(local, view.bearing, view.reach, background, radius,
                               not self.config.report_hidden)
         return out
