@@ -509,7 +509,7 @@ BEARING = np.radians(np.arange(-90.0, 90.25, 0.25))
 
 
 def reported_while_coasting(reach, radius=0.5, view=True, report_hidden=False,
-                            background=None, background_hides=True):
+                            background=None, background_hides=True, silent_is_empty=True):
     """Confirmed track ids reported at each of 9 frames: a walker along x at 1 m/s, missed
     at frame 6 (it coasts to about 2.2 m ahead of the scanner), whose scan sees ``reach``
     (per beam of ``BEARING``; ``background``: the returns on static background) then and
@@ -517,7 +517,8 @@ def reported_while_coasting(reach, radius=0.5, view=True, report_hidden=False,
     throughout."""
     tr = HypothesisTracker(HypothesisConfig(seen_empty_radius=radius,
                                             report_hidden=report_hidden,
-                                            background_hides=background_hides),
+                                            background_hides=background_hides,
+                                            silent_is_empty=silent_is_empty),
                            KalmanConfig())
     background = np.zeros(BEARING.size, bool) if background is None else background
     out = []
@@ -552,6 +553,24 @@ def test_a_coasting_track_is_not_reported_where_the_scan_sees_its_place_empty():
         assert shown[5] == shown[6] == shown[7] == [1]
     assert reported_while_coasting(beyond, radius=0.0)[6] == [1]
     assert reported_while_coasting(beyond, view=False)[6] == [1]
+
+
+def test_a_coasting_track_whose_disc_returns_nothing_within_reach_is_not_reported():
+    """Every beam through the disc around the coasting track (about 2.2 m out) returns
+    nothing while the scan returns from 8 m elsewhere: a walker there would have returned
+    some beam, so the place is seen empty and the track is left out (also with
+    report_hidden true), and comes back with its id. Reported with silent_is_empty false,
+    where the scan returns from nothing beyond the disc (silence there may be the
+    scanner's reach ending), and where a leg returns from inside the disc."""
+    around = np.abs(BEARING) < 0.35                     # the disc spans +-0.23 rad
+    silent = np.where(around, np.inf, 8.0)
+    left_out = reported_while_coasting(silent)
+    assert left_out[5] == [1] and left_out[6] == [] and left_out[7] == left_out[8] == [1]
+    assert reported_while_coasting(silent, report_hidden=True)[6] == []
+    assert reported_while_coasting(silent, silent_is_empty=False)[6] == [1]
+    assert reported_while_coasting(np.where(around, np.inf, 2.0))[6] == [1]
+    leg = np.abs(BEARING) < 0.01
+    assert reported_while_coasting(np.where(leg, 2.2, silent))[6] == [1]
 
 
 def test_a_coasting_track_the_scan_shows_hidden_is_not_reported_by_default():

@@ -276,11 +276,20 @@ class HypothesisConfig:
         'there that long, but something that hides it. false: a return within '
         'seen_empty_radius in front of the position may be the object. Off with '
         'report_hidden true.')
+    silent_is_empty: bool = param(
+        True, 'A coasting track whose disc of seen_empty_radius every beam crosses without '
+        'a return (REP 117 +inf, or no measurement) is seen empty, as long as the scan '
+        'returns from farther than the disc elsewhere (the place lies within the '
+        'scanner\'s reach): an object there would have returned some beam; a leg is '
+        'round, so some of it always faces the scanner, never all at grazing incidence. '
+        'false: such a disc is no evidence (something dark may stand there). Off with '
+        'seen_empty_radius 0.')
     seen_empty_radius: float = param(
         0.5, 'A confirmed track that nothing measured in this scan is left out of tracks '
         '(reported as not confirmed; it lives on with its id) while every beam through the '
         'disc of this radius (m) around it passes beyond the disc or returns nothing, and '
-        'one at least passes beyond: the scan sees that place empty, so the object is not '
+        'one at least passes beyond (or none returns: silent_is_empty): the scan sees that '
+        'place empty, so the object is not '
         'there (it turned, or the track followed something that never was). A track hidden '
         'behind something nearer stays reported. Where a person may stand off a coasting '
         'prediction: the person_gate and segment_gate that would take them back. 0 = off '
@@ -473,7 +482,7 @@ def _exercise_kernels() -> None:
                                      r['confirmed'], xy, np.ones(n), 2, 0.02, 0.5, 0.15)
         initiation._pairs(xy, np.ones(n, bool), xy, 0.6, 0.1)
         visibility._left_out(xy, np.linspace(-1.0, 1.0, 5), np.full(5, 3.0),
-                              np.zeros(5, np.bool_), 0.5, True)
+                              np.zeros(5, np.bool_), 0.5, True, 3.0)
     filter = TrackFilter(KalmanConfig())
     state, P = filter.initial(np.ones((1, 2)), np.zeros((1, 2)), np.ones(1))
     filter.correct(state, P, np.zeros(1), np.ones((1, 2)), 1.0)

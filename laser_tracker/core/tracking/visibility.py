@@ -8,6 +8,10 @@ scan sees the place itself, it can tell which:
   track's predicted position all pass beyond it (or return nothing at all, as from a dark
   surface, and at least one passes beyond), nothing that the scanner sees stands there: the
   object has gone elsewhere (it turned, or the track followed something that never was).
+  So too when none of them returns at all while the scan returns from farther elsewhere
+  (``silent_is_empty``): the place lies within the scanner's reach, and an object there
+  would have returned some beam. A leg is round: some of it faces the scanner, never all
+  at grazing incidence, as a wall's continuation is.
 * **Hidden** (``report_hidden`` false). When the beam towards the position itself does not
   pass beyond the disc, some beam through the disc returns from well in front of it
   (nearer than the disc by more than its radius: farther from the place than the object
@@ -51,20 +55,23 @@ class Visibility(Role):
         local = frame.scanner.to_scanner(hyp.position[rows])
         background = view.background if self.config.background_hides \
             else np.zeros(len(view), bool)     # Frame's view: flags as long as the beams
+        finite = view.reach[np.isfinite(view.reach)]
+        reach = float(finite.max()) if finite.size and self.config.silent_is_empty else 0.0
         out[rows] = _left_out(local, view.bearing, view.reach, background, radius,
-                              not self.config.report_hidden)
+                              not self.config.report_hidden, reach)
         return out
 
 
 @jit.kernel
-def _left_out(local, bearing, reach, background, radius, hidden_too):
+def _left_out(local, bearing, reach, background, radius, hidden_too, scan_reach):
     """Per point of ``local`` (k, 2; scanner frame), of the beams (``bearing``, ``reach``:
     range of the return, +inf none, -inf too close) through the disc of ``radius`` around
     it (``rho`` from the scanner):
 
     * seen empty: every one passes beyond the disc's far side (``rho + radius``: a return
       behind a person's leg at the disc's edge does not count) or returns nothing, and one
-      at least passes beyond;
+      at least passes beyond, or none returns while the far side lies within
+      ``scan_reach`` (the farthest return of the scan; 0: silence is no evidence);
     * hidden (``hidden_too``): one at least returns from in front of ``rho - 2 radius``
       (the object may stand up to ``radius`` off the point, nearer the scanner: a return
       behind that may be the object itself), none from between there and the far side,
@@ -80,7 +87,7 @@ def _left_out(local, bearing, reach, background, radius, hidden_too):
         centre = math.atan2(y, x)
         half = math.asin(radius / rho)
         near, far = rho - 2.0 * radius, rho + radius
-        through, front, at = False, False, False
+        through, front, at, silent = False, False, False, False
         nearest, nearest_off = math.nan, math.inf
         for j in range(bearing.size):
             off = abs((bearing[j] - centre + math.pi) % (2.0 * math.pi) - math.pi)
@@ -92,6 +99,7 @@ def _left_out(local, bearing, reach, background, radius, hidden_too):
             if off < nearest_off:
                 nearest, nearest_off = r, off
             if r == math.inf:
+                silent = True
                 continue
             if r > far:
                 through = True
@@ -100,7 +108,7 @@ def _left_out(local, bearing, reach, background, radius, hidden_too):
                 break
             else:
                 front = True
-        seen_empty = through and not front and not at
+        seen_empty = (through or (silent and far < scan_reach)) and not front and not at
         hidden = hidden_too and front and not at and not (far < nearest < math.inf)
         out[i] = seen_empty or hidden
     return out
