@@ -429,6 +429,29 @@ def test_real_annotations_are_placed_and_score_perfectly_when_fed_back():
     assert r['clear_mot']['all']['mota'] == pytest.approx(1.0)
 
 
+@pytest.mark.skipif(not REAL.exists(), reason=f'{REAL} not available')
+def test_real_people_in_the_scanners_reach_return_some_beam():
+    """What hypotheses.silent_is_empty rests on: a person within the scan's reach returns
+    some beam. Of the annotated positions of the followed person, all but a handful have a
+    return within 0.25 m; at most 3 have none while the same scan returns from farther."""
+    from laser_tracker.tools.bag import read_scans
+
+    ann = read_annotations(REAL)
+    scans = list(read_scans(REAL, ann.scans.topic))
+    radius, returned, silent = 0.25, 0, 0
+    for k, x, y in zip(ann.scan, ann.x, ann.y):
+        scan = scans[k]
+        rho = math.hypot(x, y)
+        off = np.abs((scan.angles - math.atan2(y, x) + np.pi) % (2 * np.pi) - np.pi)
+        reach = np.where(scan.valid(), scan.ranges, np.inf)
+        disc = reach[off <= math.asin(min(1.0, radius / rho))]
+        if (np.abs(disc - rho) <= radius).any():
+            returned += 1
+        elif not np.isfinite(disc).any() and reach[np.isfinite(reach)].max() > rho + radius:
+            silent += 1
+    assert returned >= 6170 and silent <= 3
+
+
 def test_a_recording_at_half_the_rate_keeps_each_annotation_with_its_scan(tmp_path):
     """bench real's other scanners: every second scan of an annotated recording, with the
     annotations of the scans kept (and none of those left out), each at its own scan; every
