@@ -768,7 +768,9 @@ def detections_to_marker_array(factory: MessageFactory, detections):
     the legs stand was seen free before, static = the legs stand on static background,
     spread = the distance between its two legs),
     one POINTS marker (ns ``segments``, id 0) whose points are the scan's compact segments
-    (text = JSON ``{"leg": [leg probability of each]}``), one POINTS marker (ns ``view``,
+    (text = JSON ``{"leg": [leg probability of each], "occupied": [s of each]}``; occupied:
+    how long the scans have seen its place occupied, absent when not known), one POINTS
+    marker (ns ``view``,
     id 0) whose pose is the scanner pose and whose points, one per beam in the scanner's
     frame, are what each beam saw (a return at its end point, z = 0, or z = 0.5 where it lies
     on static background; no return: the point 1 m along the beam, z = 1; too close to
@@ -819,11 +821,14 @@ def detections_to_marker_array(factory: MessageFactory, detections):
     if segments.shape[0]:
         leg = np.asarray(detections.segments.leg, float).reshape(-1)
         leg = leg if leg.shape[0] == segments.shape[0] else np.zeros(segments.shape[0])
+        text = {'leg': [round(float(v), 3) for v in leg]}
+        occupied = np.asarray(detections.segments.occupied, float).reshape(-1)
+        if occupied.shape[0] == segments.shape[0]:
+            text['occupied'] = [round(float(v), 3) for v in occupied]
         markers.append(f.make(
             'visualization_msgs/msg/Marker', header=header(f, stamp, frame_id),
             ns='segments', id=0, type=MARKER_POINTS, action=MARKER_ADD, pose=pose(0.0, 0.0),
-            text=json.dumps({'leg': [round(float(v), 3) for v in leg]},
-                            separators=(',', ':')),
+            text=json.dumps(text, separators=(',', ':')),
             scale=f.make('geometry_msgs/msg/Vector3', x=0.05, y=0.05, z=0.05),
             color=color(0.5, 0.5, 0.5, 0.6),
             points=[f.make('geometry_msgs/msg/Point', x=float(a), y=float(b), z=0.0)
@@ -845,6 +850,13 @@ def detections_to_marker_array(factory: MessageFactory, detections):
         color=color(0.2, 0.8, 0.2, 0.8),
         text=json.dumps({'restarted': bool(detections.restarted)}, separators=(',', ':'))))
     return f.make('visualization_msgs/msg/MarkerArray', markers=markers)
+
+
+def _numbers(values, n: int) -> list[float] | None:
+    """``values`` as ``n`` floats (a non-number as 0), None unless a list of ``n``."""
+    if not isinstance(values, list) or len(values) != n:
+        return None
+    return [float(v) if isinstance(v, (int, float)) else 0.0 for v in values]
 
 
 def _view_points(view) -> list[tuple[float, float, float]]:
@@ -915,13 +927,14 @@ def detections_from_marker_array(msg):
         elif m.ns == 'segments' and m.type == MARKER_POINTS:
             points = [(p.x, p.y) for p in m.points]
             try:
-                leg = json.loads(m.text).get('leg', []) if m.text else []
-            except (json.JSONDecodeError, AttributeError):
-                leg = []
-            if not isinstance(leg, list) or len(leg) != len(points):
-                leg = [0.0] * len(points)
-            segments.extend((x, y, float(v) if isinstance(v, (int, float)) else 0.0)
-                            for (x, y), v in zip(points, leg))
+                extra = json.loads(m.text) if m.text else {}
+            except json.JSONDecodeError:
+                extra = {}
+            extra = extra if isinstance(extra, dict) else {}
+            leg, occupied = (_numbers(extra.get(k), len(points)) for k in ('leg', 'occupied'))
+            segments.extend((x, y, v, w) for (x, y), v, w in zip(
+                points, leg if leg is not None else [0.0] * len(points),
+                occupied if occupied is not None else [math.nan] * len(points)))
         elif m.ns == 'view' and m.type == MARKER_POINTS:
             view = _view_of_points(np.array([(p.x, p.y, p.z) for p in m.points],
                                             dtype=float).reshape(-1, 3))
@@ -929,7 +942,7 @@ def detections_from_marker_array(msg):
         raise ValueError('MarkerArray has no scanner marker: not a blobs message')
     arr = np.array(rows, dtype=float).reshape(-1, 5)
     people = np.array(persons, dtype=float).reshape(-1, 6)
-    seg = np.array(segments, dtype=float).reshape(-1, 3)
+    seg = np.array(segments, dtype=float).reshape(-1, 4)
     return Detections(
         stamp=stamp, origin=np.array(origin, dtype=float),
         blobs=Blobs(xy=arr[:, :2].copy(), cells=arr[:, 2].astype(np.int64),
@@ -937,7 +950,9 @@ def detections_from_marker_array(msg):
         people=People(xy=people[:, :2].copy(), confidence=people[:, 2].copy(),
                       free=people[:, 3] > 0.5, spread=people[:, 4].copy(),
                       static=people[:, 5] > 0.5),
-        segments=Segments(xy=seg[:, :2].copy(), leg=seg[:, 2].copy()),
+        segments=Segments(xy=seg[:, :2].copy(), leg=seg[:, 2].copy(),
+                          occupied=seg[:, 3].copy() if not np.isnan(seg[:, 3]).any()
+                          else np.zeros(0)),
         view=view if view is not None else View(),
         frame_id=frame_id, restarted=restarted, stamp_ns=stamp_ns)
 

@@ -24,7 +24,8 @@ def message() -> Detections:
                       free=np.array([True, False]), spread=np.array([0.3, np.nan]),
                       static=np.array([False, True])),
         segments=Segments(xy=np.array([[1.0, 1.0], [2.0, 3.0], [4.0, 0.0]]),
-                          leg=np.array([0.8, 0.01, 0.0])),
+                          leg=np.array([0.8, 0.01, 0.0]),
+                          occupied=np.array([0.0, 2.5, 10.0])),
         view=View(bearing=np.array([-2.0, -0.5, 0.0, 1.0, 2.5]),
                   reach=np.array([0.3, np.inf, 4.25, -np.inf, 11.0]),
                   background=np.array([False, False, True, False, True])))
@@ -50,6 +51,7 @@ def test_every_field_crosses_the_blobs_topic(factory):
     assert p.spread[0] == pytest.approx(0.3) and math.isnan(p.spread[1])
     np.testing.assert_array_equal(got.segments.xy, sent.segments.xy)
     np.testing.assert_allclose(got.segments.leg, sent.segments.leg)
+    np.testing.assert_allclose(got.segments.occupied, sent.segments.occupied)
     np.testing.assert_allclose(got.view.bearing, sent.view.bearing, atol=1e-9)
     np.testing.assert_allclose(got.view.reach, sent.view.reach, atol=1e-9)
     assert got.view.background.tolist() == sent.view.background.tolist()
@@ -61,6 +63,22 @@ def test_an_empty_scan_is_an_empty_message():
     assert got.blobs.count == 0 and len(got.people) == 0 and len(got.segments) == 0
     assert len(got.view) == 0
     assert got.stamp == 3.0 and not got.restarted
+
+
+@pytest.mark.parametrize('text', [
+    '{"leg":[0.8,0.01,0.0]}', '{"leg":[0.8,0.01,0.0],"occupied":[1.0]}',
+    '{"leg":[0.8,0.01,0.0],"occupied":"long"}', '[1, 2]', 'not json'])
+def test_segments_without_a_readable_occupancy_decode_as_not_known(text):
+    """An older message (no occupancy), or one whose occupancy is not one number per
+    segment, decodes to an unknown occupancy; the leg probabilities still come through
+    where they are readable, and no segment is lost."""
+    msg = detections_to_marker_array(ros_factory(), message())
+    (seg,) = [m for m in msg.markers if m.ns == 'segments']
+    seg.text = text
+    got = detections_from_marker_array(msg).segments
+    assert len(got) == 3 and got.occupied.size == 0
+    readable = text.startswith('{"leg"')
+    assert got.leg.tolist() == ([0.8, 0.01, 0.0] if readable else [0.0, 0.0, 0.0])
 
 
 def test_a_marker_array_without_the_scanner_is_not_a_blobs_message():

@@ -184,13 +184,15 @@ def test_bad_blobs_are_dropped_with_a_warning(caplog):
     assert 'not finite' in caplog.text
 
 
-def people(t, *persons, confidence=0.9, segments=(), blobs_xy=(), free=True, leg=1.0):
+def people(t, *persons, confidence=0.9, segments=(), blobs_xy=(), free=True, leg=1.0,
+           occupied=0.0):
     d = frame(t, *blobs_xy)
     xy = np.array(persons, float).reshape(-1, 2)
     d.people = People(xy=xy, confidence=np.full(xy.shape[0], confidence),
                       free=np.full(xy.shape[0], free))
     at = np.array(segments, float).reshape(-1, 2)
-    d.segments = Segments(xy=at, leg=np.full(at.shape[0], leg))
+    d.segments = Segments(xy=at, leg=np.full(at.shape[0], leg),
+                          occupied=np.full(at.shape[0], occupied))
     return d
 
 
@@ -378,6 +380,50 @@ def test_a_person_missed_by_the_detector_is_held_by_a_leg_like_segment(leg, keep
     for k in range(8, 20):
         r = tr.update(people(k * DT, segments=[(2.05, 1.0)], leg=leg))
     assert (tid in r.hypotheses.track_id.tolist()) is keeps
+
+
+@pytest.mark.parametrize('walker_time, occupied, held', [
+    (1.5, 3.0, False), (0.0, 3.0, True), (1.5, 1.0, True), (1.5, 0.0, True),
+    (1.5, 5.0, True)])
+def test_a_walker_is_not_held_by_a_segment_that_stood_there_longer(walker_time, occupied,
+                                                                  held):
+    """A person walking at 1 m/s for 3.8 s whom the detector stops seeing beside a segment
+    whose place the scans have seen occupied for 3 s (the edge of what they walked behind),
+    longer than walker_time and since after the track was last measured standing (its first
+    detection, which measures no velocity), is not held there: the track coasts on along its
+    way. With walker_time 0, a segment seen for less than walker_time (a walking leg holds
+    its cell for about a step), or one occupied since before the track's first detection
+    (the person may have stood there all along), the segment holds it."""
+    cfg = HypothesisConfig(walker_time=walker_time)
+    tr = HypothesisTracker(cfg, KalmanConfig())
+    for k in range(19):
+        r = tr.update(people(k * DT, (1.0 + k * DT, 1.0)))
+    (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
+    edge = (1.0 + 19 * DT, 1.3)                     # 0.3 m beside where it walks on
+    for k in range(19, 21):
+        r = tr.update(people(k * DT, segments=[edge], occupied=occupied))
+    h = r.hypotheses
+    (i,) = np.flatnonzero(h.track_id == tid)
+    at_edge = float(np.hypot(*(h.position[i] - edge)))
+    assert (at_edge < 0.1) is held
+    if not held:                                   # coasting on along its velocity
+        assert h.position[i][0] == pytest.approx(1.0 + 20 * DT, abs=0.1)
+        assert h.position[i][1] == pytest.approx(1.0, abs=0.1)
+
+
+def test_a_person_measured_standing_is_held_where_the_scans_have_long_seen_them():
+    """Someone who stands becomes static background; a track measured standing there is
+    still held by their segment when the detector misses them, however long the scans have
+    seen it occupied."""
+    tr = HypothesisTracker(HypothesisConfig(walker_time=1.5), KalmanConfig())
+    for k in range(10):
+        r = tr.update(people(k * DT, (2.0, 1.0)))
+    (tid,) = r.hypotheses.track_id[r.hypotheses.confirmed]
+    assert r.hypotheses.t_still[0] == pytest.approx(9 * DT)
+    for k in range(10, 40):                        # 6 s missed, held on its own legs
+        r = tr.update(people(k * DT, segments=[(2.05, 1.0)], occupied=5.0 + k * DT))
+    h = r.hypotheses
+    assert tid in h.track_id.tolist() and h.stopped[h.track_id.tolist().index(tid)]
 
 
 @pytest.mark.parametrize('blob_gate, keeps', [(0.5, True), (0.0, False)])

@@ -376,3 +376,23 @@ def test_the_view_marks_the_returns_on_static_background():
     for k in range(14):
         view = off.update(ring_scan(0.1 * k), pose(0.1 * k)).detections.view
     assert len(view) == 361 and not view.background.any()
+
+
+def test_each_segment_says_how_long_its_place_has_been_seen_occupied():
+    """A post seen for 1.3 s has been occupied for 1.2 s before this scan (each scan after
+    the first adds the 0.1 s since the one before), decayed with static_time (10 s); the
+    same post seen first now, not at all (someone who has just walked there); without a
+    background (static_time 0) it is not known."""
+    from dataclasses import replace
+    def post_occupied(detector, first_post):
+        for k in range(14):
+            d = detector.update(ring_scan(0.1 * k, mover_y=0.0 if k >= first_post else None),
+                                pose(0.1 * k)).detections
+        at = np.hypot(*(d.segments.xy - (2.0, 0.0)).T) < 0.2
+        assert at.sum() == 1
+        return d.segments.occupied[at] if d.segments.occupied.size else None
+    decayed = sum(0.1 * math.exp(-(1.3 - 0.1 * k) / 10.0) for k in range(1, 13))
+    assert post_occupied(Detector(), 0)[0] == pytest.approx(decayed, abs=0.05)
+    assert post_occupied(Detector(), 13)[0] == 0.0
+    off = Detector(difference=replace(Detector().difference_config, static_time=0.0))
+    assert post_occupied(off, 0) is None

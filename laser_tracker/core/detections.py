@@ -66,10 +66,13 @@ class People(Rows):
 @dataclass
 class Segments(Rows):
     """The scan's compact segments: centroids ``xy`` and ``leg``, each one's leg probability
-    when the person detector runs (else 0)."""
+    when the person detector runs (else 0); ``occupied``: per segment, how long (s, decayed
+    as the static background is, ``difference.static_time``) the scans have seen its
+    centroid's cells occupied before this scan; empty: not known."""
 
     xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     leg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    occupied: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass

@@ -67,7 +67,8 @@ class Frame:
     """The measurements of one frame, odometry frame: motion blobs (``xy``, ``structure``),
     person detections (``persons``, ``confidence``, ``free``, ``spread``: NaN where the legs
     stand on static background, whose "legs" do not swing), compact segments
-    (``segments``, ``leg``) and what the scan's beams saw (``view``, scanner frame)."""
+    (``segments``, ``leg``, ``segment_occupied``: for how long the scans have seen their
+    place occupied) and what the scan's beams saw (``view``, scanner frame)."""
 
     stamp: float
     scanner: Scanner
@@ -79,6 +80,7 @@ class Frame:
     spread: np.ndarray
     segments: np.ndarray
     leg: np.ndarray
+    segment_occupied: np.ndarray
     view: View
 
     @property
@@ -237,14 +239,16 @@ def _people(people: People) -> tuple[np.ndarray, ...]:
             np.where(static, np.nan, _aligned(people.spread, ok, n, np.nan)))
 
 
-def _segments(segments: Segments) -> tuple[np.ndarray, np.ndarray]:
-    """The finite segments: positions and leg probability."""
+def _segments(segments: Segments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The finite segments: positions, leg probability and how long their place has been
+    seen occupied (0 where not known)."""
     xy = np.asarray(segments.xy, dtype=float).reshape(-1, 2)
     if not xy.shape[0]:
-        return xy, np.zeros(0)
+        return xy, np.zeros(0), np.zeros(0)
     n = xy.shape[0]
     xy, ok = _finite_rows(xy, segments.leg)
-    return xy, _aligned(segments.leg, ok, n, 1.0)
+    occupied = _aligned(segments.occupied, ok, n, 0.0)
+    return xy, _aligned(segments.leg, ok, n, 1.0), np.where(occupied >= 0.0, occupied, 0.0)
 
 
 def _view(view: View) -> View:

@@ -125,6 +125,7 @@ class Initiation(Role):
         out.samples = 1
         out.supported = True
         out.born, out.start = t, new_xy
+        out.t_still = -np.inf
         out.start_local = frame.scanner.to_scanner(new_xy)
         out.spread = np.nan
         self.stats['created'] += n

@@ -26,6 +26,7 @@ FIELDS = (
     ('weight', np.float64, ()),       # 0..100 (Eq. 3)
     ('samples', np.int64, ()),        # the creation pair, then one per supporting measurement
     ('born', np.float64, ()),         # creation stamp
+    ('t_still', np.float64, ()),      # last frame measured standing (-inf: never)
     ('start', np.float64, (2,)),      # where it was created (the later blob of its pair)
     ('start_local', np.float64, (2,)),  # ... in the scanner's frame of that moment
     ('person_samples', np.int64, ()),  # supports by person detections

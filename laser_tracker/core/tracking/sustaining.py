@@ -7,7 +7,10 @@
   A segment within ``stop_radius`` of the track means the object stands (its velocity is
   measured as zero); farther, it is a position measurement like a blob. Neither gains
   weight or samples: an object that stops stays tracked, with its id, as long as it stays
-  in the scans.
+  in the scans. With ``walker_time`` (off by default), a segment whose place the scans have
+  seen occupied for that long, and since before the track was last measured standing, does
+  not hold it: what has stood there all that time is not someone who was walking, but what
+  may hide them.
 * **Coasting** (paper Sec. 8): otherwise the hypothesis moves on along its velocity and
   loses ``coast_rate`` weight per second (none for the first ``coast_grace`` seconds after
   its last support), so a short occlusion is bridged.
@@ -45,9 +48,12 @@ class Sustaining(Role):
         c = self.config
         if c.segment_gate <= 0 or frame.segments.shape[0] == 0:
             return np.full(rows.size, -1, np.intp)
-        return _holding_segments(rows, pred, hyp.position, hyp.person_samples, hyp.confirmed,
-                                 frame.segments, frame.leg, c.person_kind_samples,
-                                 c.segment_min_leg, c.segment_gate, c.stop_radius)
+        return _holding_segments(rows, pred, hyp.position, hyp.person_samples,
+                                 hyp.confirmed, frame.segments, frame.leg,
+                                 frame.segment_occupied, c.person_kind_samples,
+                                 c.segment_min_leg, c.segment_gate, c.stop_radius,
+                                 hyp.t_still, frame.stamp,
+                                 c.walker_time if c.walker_time > 0 else np.inf)
 
     def hold(self, hyp: Hypotheses, at: np.ndarray, t: float) -> Hypotheses:
         """Support by the segments ``at`` (k, 2): standing within ``stop_radius``, else
@@ -76,19 +82,24 @@ class Sustaining(Role):
 
 @jit.kernel
 def _holding_segments(rows, pred, position, person_samples, confirmed, segments, leg,
-                      kind_samples, min_leg, gate, stop_radius):
+                      occupied, kind_samples, min_leg, gate, stop_radius, t_still, t,
+                      walker_time):
     """Per hypothesis of ``rows`` (predicted at ``pred``): the nearest segment within reach
     (a person's: of its prediction, within ``gate``, leg-like; another object's: of its
-    position, within ``min(gate, stop_radius)``), -1 for none or when not confirmed."""
+    position, within ``min(gate, stop_radius)``; not one seen ``occupied`` for at least
+    ``walker_time`` seconds and since before the hypothesis was last measured standing,
+    ``t_still``), -1 for none or when not confirmed."""
     out = np.full(rows.size, -1, np.intp)
     for m in range(rows.size):
         h = rows[m]
         person = person_samples[h] >= kind_samples
         ax, ay = (pred[m, 0], pred[m, 1]) if person else (position[h, 0], position[h, 1])
+        walking = t - t_still[h]
         near = -1
         best = np.inf
         for j in range(segments.shape[0]):
-            if person and leg[j] < min_leg:
+            if (person and leg[j] < min_leg) or \
+                    (occupied[j] >= walker_time and walking > occupied[j]):
                 d = np.inf
             else:
                 dx, dy = ax - segments[j, 0], ay - segments[j, 1]
