@@ -492,7 +492,7 @@ class Detector:
                               static=static)
             self._remember_people(xy, stamp, pose)
         occupied = self.background.counts(segments, stamp) \
-            if self.background is not None and segments.shape[0] else _NO_SEGMENTS
+            if self.background is not None and segments.shape[0] else _NO_OCCUPANCY
         d.segments = Segments(xy=segments, leg=leg, occupied=occupied)
         if self.times is not None:
             self.times['persons'] += time.perf_counter() - t0
@@ -803,8 +803,8 @@ def _warm_up_tracking() -> None:
 
 #: An empty mask of beams (no walked-out test this scan).
 _NO_BEAMS = np.zeros(0, bool)
-#: No segment's occupancy (none, or no background kept).
-_NO_SEGMENTS = np.zeros(0)
+#: The segments' occupancy not known (no segment, or no background kept).
+_NO_OCCUPANCY = np.zeros(0)
 
 
 def _without_body(scan: Scan, body: np.ndarray | None) -> Scan:

@@ -55,9 +55,8 @@ class Visibility(Role):
         local = frame.scanner.to_scanner(hyp.position[rows])
         background = view.background if self.config.background_hides \
             else np.zeros(len(view), bool)     # Frame's view: flags as long as the beams
-        returns = view.reach[np.isfinite(view.reach)]
-        scan_reach = float(returns.max()) if returns.size and self.config.silent_is_empty \
-            else 0.0                            # 0: a silent disc is no evidence
+        scan_reach = float(np.max(view.reach, where=np.isfinite(view.reach), initial=0.0)) \
+            if self.config.silent_is_empty else 0.0   # 0: a silent disc is no evidence
         out[rows] = _left_out(local, view.bearing, view.reach, background, radius,
                               not self.config.report_hidden, scan_reach)
         return out
